@@ -1,0 +1,1 @@
+//! TODO(owner): see issue. Placeholder module; replaced by its implementation.

@@ -1,0 +1,28 @@
+//! PyO3 bindings, one file per core module. Each binding converts and validates its arguments,
+//! releases the GIL and calls the core through `util::run`, which also turns a Rust panic into a
+//! Python `RuntimeError` instead of a crash.
+
+use pyo3::prelude::*;
+
+mod util;
+mod mesh;
+mod spatial;
+mod geodesic;
+mod descriptors;
+mod curvature;
+mod raster;
+mod shape_fit;
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(util::n_threads, m)?)?;
+    mesh::register(m)?;
+    spatial::register(m)?;
+    geodesic::register(m)?;
+    descriptors::register(m)?;
+    curvature::register(m)?;
+    raster::register(m)?;
+    shape_fit::register(m)?;
+    Ok(())
+}
