@@ -40,6 +40,31 @@ def add_commands(sub) -> None:
     d.add_argument("--seed", type=int, default=7)
     d.set_defaults(func=cmd_demo)
 
+    e = sub.add_parser("eval", help="evaluate on a synthetic database (paper Tables 1-3, Fig. 10)")
+    esub = e.add_subparsers(dest="eval_what", metavar="WHAT", required=True)
+    er = esub.add_parser("registration", help="Table 3 region errors, MHD, dense error, cumulative curve")
+    er.add_argument("db", help="synthetic database folder (with index.json)")
+    er.add_argument("--out", default="out/eval_registration", help="report folder")
+    er.add_argument("--gt-landmarks", action="store_true", help="guide by the ground-truth landmarks instead of predicted ones")
+    er.add_argument("--workers", type=int, default=2)
+    er.add_argument("--limit", type=int, help="only the first N evaluation scans")
+    er.set_defaults(func=cmd_eval_registration)
+    # `facecorr eval landmarks` is contributed by facecorr.landmarks.commands through this hook.
+    global EVAL_SUBPARSERS
+    EVAL_SUBPARSERS = esub
+
+
+#: The ``eval`` sub-command's sub-parsers, for other command modules to add to.
+EVAL_SUBPARSERS = None
+
+
+def cmd_eval_registration(args) -> int:
+    from .registration_eval import evaluate_registration
+
+    rows = evaluate_registration(args.db, args.out, use_gt_landmarks=args.gt_landmarks,
+                                 workers=args.workers, limit=args.limit)
+    return 0 if all(r["ok"] for r in rows) else 1
+
 
 def _read_landmarks_json(path, mesh) -> dict:
     """Landmarks from a JSON ({"units": u, "landmarks": {name: xyz}}) converted to mm."""
