@@ -1,0 +1,180 @@
+"""Canonical forms (Elad & Kimmel 2003): an isometry-invariant embedding of a surface in R^3.
+
+The paper (§3.1) embeds the face by least-squares MDS of geodesic distances (fast marching) and
+defines the edge potentials as relative landmark positions in that embedding. Embedding all N
+vertices (N x N distances) is neither needed nor affordable, so:
+
+1. **Samples**: ``n_samples`` vertices by farthest-point sampling (Euclidean, cheap, and on a
+   face patch it covers the surface as evenly as geodesic FPS would), always including a seed.
+2. **Distances**: one geodesic propagation per sample (``distance_rows`` callback, the Rust FMM
+   in production) gives the (S, N) matrix; its (S, S) block is symmetrised.
+3. **SMACOF** (de Leeuw's majorisation with the Guttman transform) minimises the raw stress
+   ``sum_{i<j} (||x_i - x_j|| - d_ij)^2`` from a classical-MDS (Torgerson) start; each Guttman
+   step cannot increase the stress (majorisation), the history is returned and checked by tests.
+4. **Out-of-sample placement** of the query vertices (only those we need: landmarks in training,
+   candidates in prediction): for each query q, minimise its own stress to the fixed samples
+   ``sum_j (||y - x_j|| - d_qj)^2`` by the same Guttman iteration (per point: y <- mean_j
+   (x_j + d_qj (y - x_j)/||y - x_j||)), started from the landmark-MDS (Nystrom, de Silva &
+   Tenenbaum) triangulation. Why: it optimises the *same* least-squares criterion the samples were
+   embedded with, whereas LMDS alone is exact only for Euclidean distances and biases points
+   when geodesic distances are not (a face is not flat); LMDS is a good closed-form start.
+5. **Frame**: the embedding is defined up to an orthogonal transform; we fix it by an orthogonal
+   Procrustes fit (rotation, reflection allowed because MDS' handedness is arbitrary, no scaling)
+   of the sample embedding onto the samples' scan coordinates, so canonical coordinates live in
+   the scan's frame and relative positions can be compared after a rigid pose normalisation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .alignment import kabsch
+
+
+def farthest_point_sample(points: np.ndarray, k: int, start: int = 0) -> np.ndarray:
+    """(k,) indices of a Euclidean farthest-point sample of points (n, 3), beginning at ``start``."""
+    p = np.asarray(points, dtype=np.float64)
+    n = len(p)
+    if not 0 <= start < n:
+        raise ValueError(f"farthest_point_sample: start {start} out of range [0, {n})")
+    k = min(int(k), n)
+    idx = np.empty(k, dtype=np.int64)
+    idx[0] = start
+    d = np.linalg.norm(p - p[start], axis=1)
+    for i in range(1, k):
+        idx[i] = int(np.argmax(d))
+        d = np.minimum(d, np.linalg.norm(p - p[idx[i]], axis=1))
+    return idx
+
+
+def stress(x: np.ndarray, d: np.ndarray) -> float:
+    """Raw stress sum_{i<j} (||x_i - x_j|| - d_ij)^2 of an embedding x (S, k) for distances d (S, S)."""
+    dx = np.linalg.norm(x[:, None] - x[None], axis=-1)
+    return 0.5 * float(np.sum((dx - d) ** 2))
+
+
+def classical_mds(d: np.ndarray, dim: int = 3) -> np.ndarray:
+    """Torgerson MDS: (S, dim) coordinates from double-centred squared distances."""
+    s = len(d)
+    j = np.eye(s) - 1.0 / s
+    b = -0.5 * j @ (d**2) @ j
+    w, v = np.linalg.eigh(b)
+    order = np.argsort(w)[::-1][:dim]
+    return v[:, order] * np.sqrt(np.maximum(w[order], 0.0))
+
+
+def smacof(d: np.ndarray, dim: int = 3, init: np.ndarray | None = None, max_iter: int = 300,
+           rel_tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares MDS by SMACOF with unit weights.
+
+    Parameters
+    ----------
+    d : (S, S) symmetric non-negative dissimilarities (mm), zero diagonal.
+    dim : embedding dimension.
+    init : (S, dim) start; default classical MDS.
+    max_iter, rel_tol : stop when the relative stress decrease of an iteration is below rel_tol.
+
+    Returns
+    -------
+    x : (S, dim) embedding; history : (iterations + 1,) raw stress after each step (non-increasing).
+    """
+    d = np.asarray(d, dtype=np.float64)
+    if d.ndim != 2 or d.shape[0] != d.shape[1] or len(d) < dim + 1:
+        raise ValueError(f"smacof: need a square (S, S) matrix with S > {dim}, got {d.shape}")
+    if not np.isfinite(d).all() or (d < 0).any():
+        raise ValueError("smacof: dissimilarities must be finite and non-negative")
+    s = len(d)
+    x = classical_mds(d, dim) if init is None else np.array(init, dtype=np.float64)
+    x = x - x.mean(0)
+    hist = [stress(x, d)]
+    for _ in range(max_iter):
+        dx = np.linalg.norm(x[:, None] - x[None], axis=-1)
+        ratio = np.divide(d, dx, out=np.zeros_like(d), where=dx > 1e-12)
+        b = -ratio
+        np.fill_diagonal(b, 0.0)
+        np.fill_diagonal(b, -b.sum(axis=1))
+        x = b @ x / s  # Guttman transform (unit weights: V^+ = I/S on centred configurations)
+        hist.append(stress(x, d))
+        if hist[-2] - hist[-1] <= rel_tol * max(hist[-2], 1e-300):
+            break
+    return x, np.asarray(hist)
+
+
+def place_out_of_sample(x: np.ndarray, d_q: np.ndarray, iters: int = 30) -> np.ndarray:
+    """Positions (Q, k) of new points given their distances d_q (Q, S) to embedded samples x (S, k).
+
+    Start: landmark MDS (Nystrom) triangulation; then per-point Guttman iterations on the point's
+    stress to the samples (each step cannot increase it).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    d_q = np.asarray(d_q, dtype=np.float64)
+    s, k = x.shape
+    if d_q.ndim != 2 or d_q.shape[1] != s:
+        raise ValueError(f"place_out_of_sample: d_q must be (Q, {s}), got {d_q.shape}")
+    # LMDS: with centred samples Xc, ||y - x_j||^2 - mean_i ||x_j - x_i||^2 = |y|^2 - 2 y.x_j - const,
+    # and pinv(Xc) kills constants, so y = -1/2 pinv(Xc) (d_q^2 - mean_d2).
+    mu = x.mean(0)
+    xc = x - mu
+    dx2 = np.linalg.norm(x[:, None] - x[None], axis=-1) ** 2
+    mean_d2 = dx2.mean(axis=1)
+    pinv = np.linalg.pinv(xc)  # (k, S)
+    y = -0.5 * (d_q**2 - mean_d2[None]) @ pinv.T + mu
+    for _ in range(iters):
+        diff = y[:, None, :] - x[None]  # (Q, S, k)
+        dist = np.linalg.norm(diff, axis=-1)
+        ratio = np.divide(d_q, dist, out=np.zeros_like(d_q), where=dist > 1e-12)
+        y = np.mean(x[None] + ratio[..., None] * diff, axis=1)
+    return y
+
+
+@dataclass
+class CanonicalForm:
+    """samples (S,) vertex ids; embedding (S, 3) their canonical positions (scan frame, mm);
+    positions (Q, 3) canonical positions of the query vertices (scan frame, mm);
+    stress_history (T,) SMACOF raw stress; rel_stress float = sqrt(stress / sum d^2)."""
+
+    samples: np.ndarray
+    embedding: np.ndarray
+    positions: np.ndarray
+    stress_history: np.ndarray
+    rel_stress: float
+
+
+def canonical_form(vertices: np.ndarray, distance_rows: Callable[[np.ndarray], np.ndarray],
+                   query: np.ndarray, region: np.ndarray | None = None, n_samples: int = 100,
+                   seed_vertex: int | None = None, max_iter: int = 300) -> CanonicalForm:
+    """Canonical-form positions of the query vertices.
+
+    Parameters
+    ----------
+    vertices : (N, 3) scan vertices, mm.
+    distance_rows : callable(sources (S,)) -> (S, N) geodesic distances, mm (inf = unreached).
+    query : (Q,) vertex ids to place.
+    region : (R,) vertex ids the samples are drawn from (default all); e.g. a geodesic disk around
+        the nose so hair, neck and shoulders of a raw scan do not dominate the embedding.
+    n_samples : number of farthest-point samples S.
+    seed_vertex : first sample (default the region's first vertex).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    region = np.arange(len(v)) if region is None else np.asarray(region, dtype=np.int64)
+    query = np.asarray(query, dtype=np.int64)
+    start = 0 if seed_vertex is None else int(np.flatnonzero(region == seed_vertex)[0])
+    samples = region[farthest_point_sample(v[region], n_samples, start=start)]
+    rows = np.asarray(distance_rows(samples), dtype=np.float64)
+    dss = rows[:, samples]
+    ok = np.isfinite(dss).all(axis=1) & np.isfinite(rows[:, query]).all(axis=1)
+    if ok.sum() < 4:
+        raise ValueError("canonical_form: fewer than 4 samples reach the query vertices (disconnected surface?)")
+    # Keep the samples connected to everything we need (a raw scan can have islands).
+    samples, rows = samples[ok], rows[ok]
+    dss = rows[:, samples]
+    dss = 0.5 * (dss + dss.T)
+    np.fill_diagonal(dss, 0.0)
+    x, hist = smacof(dss, 3, max_iter=max_iter)
+    y = place_out_of_sample(x, rows[:, query].T)
+    r, t = kabsch(x, v[samples], allow_reflection=True)
+    return CanonicalForm(samples=samples, embedding=x @ r.T + t, positions=y @ r.T + t,
+                         stress_history=hist, rel_stress=float(np.sqrt(2 * hist[-1] / np.sum(dss**2))))
