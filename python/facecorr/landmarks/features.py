@@ -1,0 +1,85 @@
+"""Per-scan feature machinery shared by training and prediction.
+
+A :class:`ScanFeatures` wraps one mesh with the compiled geodesic solver and KD-tree built once,
+caches FP descriptors per vertex (the nose search, the candidate sets and the node potentials ask
+for overlapping vertices), and computes canonical-form positions of requested vertices.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .mds import canonical_form
+
+
+def voxel_subsample(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.ndarray:
+    """Subset of ``ids`` with at most one vertex per cube of side ``spacing`` (mm): the vertex
+    nearest to its cell's centre. O(n); keeps the candidate sets evenly spread whatever the scan's
+    resolution."""
+    ids = np.asarray(ids, dtype=np.int64)
+    if len(ids) == 0 or spacing <= 0:
+        return ids
+    p = points[ids]
+    cell = np.floor(p / spacing)
+    off = np.linalg.norm(p - (cell + 0.5) * spacing, axis=1)
+    order = np.lexsort((off, cell[:, 2], cell[:, 1], cell[:, 0]))
+    c = cell[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = np.any(c[1:] != c[:-1], axis=1)
+    return np.sort(ids[order[first]])
+
+
+class ScanFeatures:
+    """Geodesics, FP descriptors and canonical forms on one mesh (mm).
+
+    Parameters
+    ----------
+    vertices : (N, 3) mm; faces : (M, 3).
+    radii : (S,) FP radii, mm.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, radii: np.ndarray):
+        from ..geodesic import GeodesicSolver
+        from ..spatial import KDTree
+
+        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
+        self.radii = np.asarray(radii, dtype=np.float64)
+        self.solver = GeodesicSolver(self.vertices, self.faces)
+        self.tree = KDTree(self.vertices)
+        self._fp = {}
+
+    def fingerprint(self, ids) -> np.ndarray:
+        """(len(ids), S) FP descriptors at vertex ids (cached)."""
+        ids = np.asarray(ids, dtype=np.int64).ravel()
+        missing = np.unique([i for i in ids.tolist() if i not in self._fp])
+        if len(missing):
+            rows = np.asarray(self.solver.fingerprint(missing, self.radii), dtype=np.float64)
+            for i, r in zip(missing.tolist(), rows):
+                self._fp[i] = r
+        if len(ids) == 0:
+            return np.zeros((0, len(self.radii)))
+        return np.array([self._fp[i] for i in ids.tolist()])
+
+    def geodesic_disk(self, center: int, radius: float) -> np.ndarray:
+        """Sorted vertex ids within geodesic distance ``radius`` (mm) of ``center``."""
+        d = np.asarray(self.solver.distances(np.array([center], dtype=np.int64), max_distance=radius))
+        return np.flatnonzero(d <= radius)
+
+    def canonical_positions(self, query, center: int, region_radius: float, n_samples: int):
+        """Canonical-form positions (Q, 3) of query vertex ids, in the scan frame (mm).
+
+        Samples are drawn from the geodesic disk of ``region_radius`` around ``center`` (the nose
+        tip), so hair, neck and shoulders of a raw scan do not enter the embedding.
+        """
+        region = self.geodesic_disk(center, region_radius)
+        if len(region) < 10:
+            raise ValueError("canonical form: the region around the nose has fewer than 10 vertices")
+
+        def rows(sources):
+            # Everything needed lies in the disk, so distances never exceed its diameter.
+            return self.solver.distance_matrix(np.asarray(sources, dtype=np.int64),
+                                               max_distance=2.0 * region_radius)
+
+        return canonical_form(self.vertices, rows, np.asarray(query, dtype=np.int64), region=region,
+                              n_samples=n_samples, seed_vertex=int(center))

@@ -1,0 +1,306 @@
+"""Landmark prediction on an untouched scan (paper §3.2-3.6).
+
+Stages (their wall times are returned in ``LandmarkResult.timings_s``):
+
+``prepare``     geodesic solver + KD-tree over the scan (compiled core).
+``umbilics``    umbilic vertices (``facecorr.curvature.umbilics``): the samples of §3.4.
+``fppca``       FP descriptors at the umbilics, PCA projection, ellipsoid labels.
+``nose``        §3.5: start at the umbilic closest (PCA space) to the nose-tip medoid among those
+                labelled nose tip; FPPCA on the geodesic circle of radius r around it; nose tip /
+                subnasal = the labelled vertices closest to their medoids; FPPCA on the circle
+                around the subnasal, vertices labelled 5 or 6 split by k-means (k = 2, fixed seed)
+                into the two sides; each side's point = the vertex nearest its centroid.
+``align``       §3.6: Pa's nose points aligned rigidly to the four points in both 5/6 labellings;
+                the labelling with the smaller D_F wins.
+``candidates``  search regions: scan vertices within ``search_radius[i]`` (Euclidean) of each
+                aligned Pa point, voxel-subsampled to ``candidate_spacing`` mm and capped at
+                ``max_candidates`` (nearest to the Pa point first); FP at each candidate.
+``canonical``   canonical form (FMM geodesics + SMACOF, :mod:`.mds`) of the candidates, rotated
+                into the template frame by the inverse of the ``align`` transform.
+``bp``          loopy max-product BP with the Gaussian node (FP) and edge (relative canonical
+                position) log-potentials.
+
+Circles are subsampled to ``circle_spacing`` mm before FPPCA (a 25 mm geodesic circle holds
+~2000 vertices of a 1 mm scan; FP at every one is the dominant cost and neighbours 1 mm apart
+carry the same label). When several nose-tip starts are plausible, the ``n_starts`` best umbilics
+are tried and the hypothesis with the best BP score wins (robustness on raw scans with hair).
+
+Confidence per landmark: the BP max-marginal probability mass (softmax of the beliefs) within
+``confidence_radius`` mm of the chosen vertex, times a node-fit factor
+``min(1, 2 * chi2.sf(m2, S))`` where m2 is the squared Mahalanobis distance of the chosen
+vertex's FP to the landmark's learned Gaussian (1 for a typical descriptor, small for an
+implausible one). Flags name the reasons for doubt.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.cluster.vq import kmeans2
+from scipy.special import logsumexp
+from scipy.stats import chi2
+
+from ..errors import LandmarkError
+from ..names import LANDMARK_NAMES
+from .alignment import align_graph
+from .bp import max_product
+from .features import ScanFeatures, voxel_subsample
+from .gaussian import log_density, mahalanobis2
+
+NOSE_TIP, SUBNASAL, R_SUBALARE, L_SUBALARE = 6, 7, 4, 5
+
+#: Prediction settings not stored in the model (they do not depend on training).
+PREDICT_DEFAULTS = {
+    "circle_spacing": 2.0,        # mm, subsampling of the geodesic search circles
+    "candidate_spacing": 1.5,     # mm, subsampling of the BP search regions
+    "n_starts": 3,                # nose-tip start hypotheses
+    "confidence_radius": 4.0,     # mm
+    "low_confidence": 0.3,        # flag below this
+    "bp_iterations": 60,
+}
+
+
+@dataclass
+class LandmarkResult:
+    """positions dict name -> (3,) mm (scan frame); confidence dict name -> [0, 1];
+    flags list of str (reasons for doubt); timings_s dict stage -> seconds;
+    vertex_ids dict name -> chosen scan vertex; debug dict (intermediate results)."""
+
+    positions: dict
+    confidence: dict
+    flags: list
+    timings_s: dict
+    vertex_ids: dict = field(default_factory=dict)
+    debug: dict = field(default_factory=dict)
+
+    def as_array(self) -> np.ndarray:
+        """(8, 3) positions in LANDMARK_NAMES order, mm."""
+        return np.array([self.positions[n] for n in LANDMARK_NAMES])
+
+
+class _Timer:
+    def __init__(self):
+        self.t = {}
+
+    def __call__(self, name):
+        timer = self
+
+        class _C:
+            def __enter__(self):
+                self.t0 = time.perf_counter()
+
+            def __exit__(self, *exc):
+                timer.t[name] = timer.t.get(name, 0.0) + time.perf_counter() - self.t0
+        return _C()
+
+
+def _fppca(feat: ScanFeatures, clf, ids: np.ndarray):
+    """(labels (n, L) bool, medoid distances (n, L)) of vertex ids."""
+    fp = feat.fingerprint(ids)
+    return clf.label(fp), clf.medoid_distance(fp)
+
+
+def _closest_labelled(ids, labels, dist, cls):
+    """The id labelled ``cls`` with the smallest medoid distance, or None."""
+    m = labels[:, cls]
+    if not m.any():
+        return None
+    k = np.flatnonzero(m)[np.argmin(dist[m, cls])]
+    return int(ids[k])
+
+
+def _nose_points(feat: ScanFeatures, model, start: int, opts) -> tuple[np.ndarray, list]:
+    """Four nose points (side A, side B, tip, subnasal) as vertex ids, from a nose-tip start."""
+    clf = model.classifier
+    flags = []
+    r = float(model.param("nose_search_radius_mm"))
+    disk = voxel_subsample(feat.vertices, feat.geodesic_disk(start, r), opts["circle_spacing"])
+    disk = np.union1d(disk, [start])
+    lab, dist = _fppca(feat, clf, disk)
+    tip = _closest_labelled(disk, lab, dist, NOSE_TIP)
+    if tip is None:
+        tip = start
+        flags.append("nose_tip_unlabelled")
+    sub = _closest_labelled(disk, lab, dist, SUBNASAL)
+    if sub is None:  # fall back to the nearest descriptor to the subnasal medoid in the circle
+        sub = int(disk[np.argmin(dist[:, SUBNASAL])])
+        flags.append("subnasal_unlabelled")
+    r2 = float(model.param("subnasal_search_radius_mm"))
+    disk2 = voxel_subsample(feat.vertices, feat.geodesic_disk(sub, r2), opts["circle_spacing"])
+    lab2, dist2 = _fppca(feat, clf, disk2)
+    side = lab2[:, R_SUBALARE] | lab2[:, L_SUBALARE]
+    pts_ids = disk2[side]
+    if len(pts_ids) < 2:
+        # No labelled subalare: take the descriptors nearest either medoid (best 10%).
+        d = np.minimum(dist2[:, R_SUBALARE], dist2[:, L_SUBALARE])
+        pts_ids = disk2[np.argsort(d)[: max(4, len(d) // 10)]]
+        flags.append("subalare_unlabelled")
+    pts = feat.vertices[pts_ids]
+    # k-means on 3-D positions: the two alae are on either side of the subnasal.
+    init = _two_side_init(pts, feat.vertices[tip], feat.vertices[sub])
+    centroids, assign = kmeans2(pts, init, minit="matrix", seed=0)
+    if (np.bincount(assign, minlength=2) == 0).any():
+        flags.append("subalare_one_sided")
+        centroids = init
+    _, side_ids = feat.tree.query(centroids)
+    return np.array([int(side_ids[0]), int(side_ids[1]), tip, sub]), flags
+
+
+def _two_side_init(pts, tip, sub):
+    """Deterministic k-means start: the extreme points along the principal direction of the
+    labelled points orthogonal to the tip-subnasal line."""
+    axis = tip - sub
+    axis = axis / (np.linalg.norm(axis) + 1e-12)
+    c = pts - pts.mean(0)
+    c = c - np.outer(c @ axis, axis)
+    if len(pts) < 2 or np.allclose(c, 0):
+        return np.vstack([pts[0], pts[-1]]).astype(float)
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    s = c @ vt[0]
+    return np.vstack([pts[np.argmin(s)], pts[np.argmax(s)]]).astype(float)
+
+
+def _candidates(feat: ScanFeatures, model, pa_points, opts):
+    """Per landmark: candidate vertex ids near the aligned Pa point."""
+    cands = []
+    for i in range(len(LANDMARK_NAMES)):
+        ball = np.asarray(feat.tree.query_ball_point(pa_points[i][None], float(model.search_radius[i]))[0], dtype=np.int64)
+        if len(ball) == 0:
+            _, j = feat.tree.query(pa_points[i][None])
+            ball = np.array([int(j[0])])
+        ball = voxel_subsample(feat.vertices, ball, opts["candidate_spacing"])
+        cap = int(model.param("max_candidates"))
+        if len(ball) > cap:
+            d = np.linalg.norm(feat.vertices[ball] - pa_points[i], axis=1)
+            ball = ball[np.argsort(d)[:cap]]
+        cands.append(ball)
+    return cands
+
+
+def _run_hypothesis(feat, model, start, opts, timer):
+    with timer("nose"):
+        nose_ids, flags = _nose_points(feat, model, start, opts)
+    with timer("align"):
+        al = align_graph(model.graph_points, feat.vertices[nose_ids], feat.tree)
+    with timer("candidates"):
+        cands = _candidates(feat, model, al.points, opts)
+        fps = [feat.fingerprint(c) for c in cands]
+        unary = [log_density(f, model.node_mean[i], model.node_cov[i]) for i, f in enumerate(fps)]
+    with timer("canonical"):
+        allc = np.unique(np.concatenate(cands))
+        tip = int(nose_ids[2])
+        cf = feat.canonical_positions(allc, tip, float(model.param("mds_region_mm")),
+                                      int(model.param("mds_samples")))
+        # scan frame -> template frame (inverse of the Pa alignment), so relative positions are
+        # comparable with training whatever the scan's pose.
+        canon = (cf.positions - al.translation) @ al.rotation
+        pos = {int(v): canon[k] for k, v in enumerate(allc)}
+    with timer("bp"):
+        pairwise = {}
+        for e, (i, j) in enumerate(model.edges):
+            ci = np.array([pos[int(v)] for v in cands[i]])
+            cj = np.array([pos[int(v)] for v in cands[j]])
+            rel = cj[None, :, :] - ci[:, None, :]
+            pairwise[(int(i), int(j))] = log_density(rel, model.edge_mean[e], model.edge_cov[e])
+        res = max_product(unary, pairwise, max_iter=opts["bp_iterations"])
+    return dict(nose_ids=nose_ids, flags=flags, alignment=al, cands=cands, fps=fps, bp=res,
+                rel_stress=cf.rel_stress)
+
+
+def predict_landmarks(mesh, model=None, **options) -> "LandmarkResult":
+    """Predict the 8 landmarks of a face scan.
+
+    Parameters
+    ----------
+    mesh : facecorr.mesh.Mesh (mm, any pose, cropped or raw).
+    model : LandmarkModel, a path, or None for the packaged default.
+    options : overrides of :data:`PREDICT_DEFAULTS`.
+
+    Returns
+    -------
+    LandmarkResult (positions in mm, scan frame).
+
+    Raises
+    ------
+    LandmarkError : no face-like structure to start from (no umbilics, no nose-tip candidate).
+    """
+    from .model import LandmarkModel, load_model
+
+    opts = dict(PREDICT_DEFAULTS)
+    unknown = set(options) - set(opts)
+    if unknown:
+        raise TypeError(f"predict_landmarks: unknown options {sorted(unknown)}")
+    opts.update(options)
+    if not isinstance(model, LandmarkModel):
+        model = load_model(model)
+    timer = _Timer()
+    name = mesh.source or "scan"
+    with timer("prepare"):
+        feat = ScanFeatures(mesh.vertices, mesh.faces, model.radii)
+    with timer("umbilics"):
+        from ..curvature import umbilics
+
+        umb = np.asarray(umbilics(mesh.vertices, mesh.faces), dtype=np.int64)
+    if len(umb) == 0:
+        raise LandmarkError(f"{name}: no umbilics found: not a face surface (too small or flat?)")
+    with timer("fppca"):
+        lab, dist = _fppca(feat, model.classifier, umb)
+    # Start hypotheses: umbilics labelled nose tip, nearest the medoid first; if none carries
+    # the label, the nearest umbilics overall (flagged).
+    flags = []
+    tipd = dist[:, NOSE_TIP]
+    order = np.argsort(tipd)
+    labelled = order[lab[order, NOSE_TIP]]
+    if len(labelled) == 0:
+        flags.append("no_umbilic_labelled_nose_tip")
+        labelled = order
+    starts = [int(umb[k]) for k in labelled[: max(1, int(opts["n_starts"]))]]
+    best = None
+    for s in starts:
+        try:
+            h = _run_hypothesis(feat, model, s, opts, timer)
+        except ValueError as e:  # a start on an island or a tiny region: try the next one
+            flags.append(f"start_failed:{e}")
+            continue
+        if best is None or h["bp"].score > best["bp"].score:
+            best = h
+    if best is None:
+        raise LandmarkError(f"{name}: no usable nose region found (no face, or a hole over the nose?)")
+    res = best["bp"]
+    flags += best["flags"]
+    positions, confidence, vids = {}, {}, {}
+    s_dim = len(model.radii)
+    for i, nm in enumerate(LANDMARK_NAMES):
+        c = best["cands"][i]
+        v = int(c[res.labels[i]])
+        vids[nm] = v
+        positions[nm] = feat.vertices[v].copy()
+        b = res.beliefs[i]
+        p = np.exp(b - logsumexp(b)) if np.isfinite(b).any() else np.full(len(b), 1.0 / len(b))
+        near = np.linalg.norm(feat.vertices[c] - feat.vertices[v], axis=1) <= opts["confidence_radius"]
+        m2 = float(mahalanobis2(best["fps"][i][res.labels[i]], model.node_mean[i], model.node_cov[i]))
+        fit = min(1.0, 2.0 * float(chi2.sf(m2, s_dim)))
+        confidence[nm] = float(np.clip(p[near].sum() * fit, 0.0, 1.0))
+        if confidence[nm] < opts["low_confidence"]:
+            flags.append(f"low_confidence:{nm}")
+    # Geometric plausibility: the aligned Pa must lie on the surface (a half face or a hole over
+    # the nose leaves Pa's far side in the air).
+    al = best["alignment"]
+    d_surf, _ = feat.tree.query(al.points)
+    if d_surf.max() > 10.0:
+        off = [LANDMARK_NAMES[k] for k in np.flatnonzero(d_surf > 10.0)]
+        flags.append(f"graph_off_surface:{','.join(off)} (half face or missing region?)")
+    pred = np.array([positions[n] for n in LANDMARK_NAMES])
+    tpl = model.graph_points
+    span = np.linalg.norm(pred[0] - pred[3]) / max(np.linalg.norm(tpl[0] - tpl[3]), 1e-9)
+    if not 0.6 < span < 1.5:
+        flags.append(f"implausible_eye_span:{span:.2f}x template")
+    debug = dict(nose_ids=best["nose_ids"], flipped=al.flipped, d_f=al.d_f, bp_score=res.score,
+                 bp_converged=res.converged, n_umbilics=len(umb), starts=starts,
+                 n_candidates=[len(c) for c in best["cands"]], rel_stress=best["rel_stress"])
+    timings = dict(timer.t)
+    timings["total"] = float(sum(timer.t.values()))
+    return LandmarkResult(positions=positions, confidence=confidence, flags=flags, timings_s=timings,
+                          vertex_ids=vids, debug=debug)

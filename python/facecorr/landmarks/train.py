@@ -1,0 +1,168 @@
+"""Training the landmark model from a synthetic database (paper §3.1, §3.4).
+
+For every training scan (``split == "train"``; Tn = neutral scans only, Te = all of them):
+
+1. the ground-truth landmarks are snapped to their nearest scan vertices (FP is a per-vertex
+   descriptor);
+2. FP descriptors at those vertices (radii :data:`DEFAULT_RADII` mm) -> node samples;
+3. the canonical form (FMM geodesics + SMACOF on ``mds_samples`` farthest-point samples of the
+   ``mds_region_mm`` geodesic disk around the nose tip, the same code prediction runs) gives the
+   landmarks' canonical positions; these are brought into the template frame by the inverse of
+   the rigid transform that aligns Pa's four nose points to the true nose points (prediction
+   uses the same nose-point alignment, so both see the same pose normalisation) -> edge samples
+   ``x_j - x_i`` over the landmark-graph edges (``facecorr.template`` GRAPH_EDGES);
+4. the distance from each Pa point, so aligned, to the true landmark -> search radii.
+
+Then: Gaussian ML node and edge potentials (:mod:`.gaussian`), the FPPCA classifier
+(:mod:`.classify`, D = 3, M = 1.5) and the search radii
+``clip(2 * q95(alignment error) + 2 mm, 8, 30)`` per landmark.
+
+FP radii: 8 radii from 5 to 40 mm (every 5 mm). The paper does not give its radii; 5 mm
+resolves the eye corners and alae, 40 mm (about the nose length) separates the nose tip from
+cheeks and chin; beyond that the cropped face's boundary truncates the disks.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FacecorrError
+from ..names import LANDMARK_NAMES
+from .alignment import kabsch
+from .classify import fit_classifier
+from .gaussian import fit_gaussian
+from .model import DEFAULT_PARAMS, LandmarkModel
+
+DEFAULT_RADII = np.arange(5.0, 40.0 + 1e-9, 5.0)
+
+
+class TrainingError(FacecorrError, ValueError):
+    """The database cannot train a model (no scans, unreadable files)."""
+
+
+def scan_training_sample(scan_path, landmarks_mm: np.ndarray, graph_points: np.ndarray, edges: np.ndarray,
+                         radii=DEFAULT_RADII, params=None) -> dict:
+    """Features of one training scan.
+
+    Parameters
+    ----------
+    scan_path : mesh file (loaded with facecorr.io.load_mesh, mm).
+    landmarks_mm : (8, 3) ground truth in LANDMARK_NAMES order, scan frame, mm.
+    graph_points : (8, 3) Pa; edges : (E, 2).
+
+    Returns dict with fp (8, S), rel (E, 3), align_err (8,), snap (8,) mm, seconds.
+    """
+    from ..io import load_mesh
+    from .features import ScanFeatures
+
+    t0 = time.perf_counter()
+    p = dict(DEFAULT_PARAMS, **(params or {}))
+    mesh = load_mesh(scan_path, units="mm")
+    feat = ScanFeatures(mesh.vertices, mesh.faces, radii)
+    snap_d, vid = feat.tree.query(np.asarray(landmarks_mm, dtype=np.float64))
+    vid = np.asarray(vid, dtype=np.int64)
+    fp = feat.fingerprint(vid)
+    cf = feat.canonical_positions(vid, int(vid[6]), float(p["mds_region_mm"]), int(p["mds_samples"]))
+    r, t = kabsch(graph_points[4:8], landmarks_mm[4:8])
+    canon = (cf.positions - t) @ r  # template frame
+    rel = canon[edges[:, 1]] - canon[edges[:, 0]]
+    align_err = np.linalg.norm(graph_points @ r.T + t - landmarks_mm, axis=1)
+    return dict(fp=fp, rel=rel, align_err=align_err, snap=np.asarray(snap_d), seconds=time.perf_counter() - t0,
+                rel_stress=cf.rel_stress)
+
+
+def _records(db_dir, neutral_only: bool):
+    from ..synth import load_index
+
+    try:
+        recs = load_index(db_dir)
+    except FacecorrError:
+        raise
+    except (OSError, ValueError, KeyError) as e:
+        raise TrainingError(f"{db_dir}: cannot read the database index ({type(e).__name__}: {e})") from None
+    recs = [r for r in recs if r.get("split") == "train"]
+    if neutral_only:
+        recs = [r for r in recs if r.get("expression") == "NE"]
+    if not recs:
+        raise TrainingError(f"{db_dir}: no training scans{' (neutral only)' if neutral_only else ''}")
+    return recs
+
+
+def _gt_landmarks(gt_path) -> np.ndarray:
+    data = json.loads(Path(gt_path).read_text())
+    return np.array([data["landmarks"][n] for n in LANDMARK_NAMES], dtype=np.float64)
+
+
+def _work(args):
+    rec, pa, edges, radii, params = args
+    try:
+        return scan_training_sample(rec["scan"], _gt_landmarks(rec["gt"]), pa, edges, radii, params)
+    except (FacecorrError, ValueError, OSError) as e:
+        return {"error": f"{rec['scan']}: {type(e).__name__}: {e}"}
+
+
+def train(db_dir, out_path, neutral_only: bool = False, workers: int = 2, radii=DEFAULT_RADII,
+          params: dict | None = None, progress: bool = True) -> LandmarkModel:
+    """Train a model on the database's training split and save it to ``out_path``.
+
+    Parameters
+    ----------
+    db_dir : synthetic database folder (index.json).
+    out_path : .npz to write (atomically).
+    neutral_only : Tn (neutral scans only) instead of Te (all expressions).
+    workers : process pool size (1 = in process).
+    """
+    from ..template import load_template
+
+    recs = _records(db_dir, neutral_only)
+    tpl = load_template()
+    pa = np.asarray(tpl.graph_points, dtype=np.float64)
+    edges = np.asarray(tpl.graph_edges, dtype=np.int64)
+    p = dict(DEFAULT_PARAMS, **(params or {}))
+    jobs = [(r, pa, edges, np.asarray(radii, float), p) for r in recs]
+    results = []
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(jobs), desc="train", unit="scan", disable=not progress)
+    if workers > 1 and len(jobs) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=workers) as ex:
+            for res in ex.map(_work, jobs):
+                results.append(res)
+                bar.update()
+    else:
+        for j in jobs:
+            results.append(_work(j))
+            bar.update()
+    bar.close()
+    errors = [r["error"] for r in results if "error" in r]
+    ok = [r for r in results if "error" not in r]
+    if len(ok) < 3:
+        raise TrainingError(f"only {len(ok)} usable training scans ({len(errors)} failed; first: "
+                            f"{errors[0] if errors else '-'})")
+    fp = np.stack([r["fp"] for r in ok])        # (n, 8, S)
+    rel = np.stack([r["rel"] for r in ok])      # (n, E, 3)
+    aerr = np.stack([r["align_err"] for r in ok])  # (n, 8)
+    n, L, S = fp.shape
+    clf = fit_classifier(fp.reshape(-1, S), np.tile(np.arange(L), n), L)
+    node = [fit_gaussian(fp[:, i], ridge=float(p["node_ridge"])) for i in range(L)]
+    # Edge covariances get a 1 mm^2 floor: canonical positions are only as good as the vertex
+    # spacing and the MDS fit.
+    edge = [fit_gaussian(rel[:, e], ridge=1e-6, floor=1.0) for e in range(len(edges))]
+    search = np.clip(2.0 * np.quantile(aerr, 0.95, axis=0) + 2.0, 8.0, 30.0)
+    p.update(trained_on=str(db_dir), n_scans=len(ok), n_failed=len(errors), neutral_only=bool(neutral_only),
+             mean_snap_mm=float(np.mean([r["snap"].mean() for r in ok])),
+             mean_rel_stress=float(np.mean([r["rel_stress"] for r in ok])))
+    model = LandmarkModel(radii=np.asarray(radii, float), classifier=clf,
+                          node_mean=np.array([m for m, _ in node]), node_cov=np.array([c for _, c in node]),
+                          edges=edges, edge_mean=np.array([m for m, _ in edge]),
+                          edge_cov=np.array([c for _, c in edge]), graph_points=pa, search_radius=search,
+                          params=p)
+    model.save(out_path)
+    model.source = str(out_path)
+    return model
