@@ -66,8 +66,9 @@ class ScanFeatures:
         d = np.asarray(self.solver.distances(np.array([center], dtype=np.int64), max_distance=radius))
         return np.flatnonzero(d <= radius)
 
-    def canonical_positions(self, query, center: int, region_radius: float, n_samples: int):
-        """Canonical-form positions (Q, 3) of query vertex ids, in the scan frame (mm).
+    def canonical_form(self, query, center: int, region_radius: float, n_samples: int):
+        """Canonical form (:class:`.mds.CanonicalForm`) with ``.positions`` (Q, 3) of the query
+        vertex ids, scan frame, mm; ``.place(ids)`` places more vertices later.
 
         Samples are drawn from the geodesic disk of ``region_radius`` around ``center`` (the nose
         tip), so hair, neck and shoulders of a raw scan do not enter the embedding.

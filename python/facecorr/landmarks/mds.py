@@ -132,27 +132,40 @@ def place_out_of_sample(x: np.ndarray, d_q: np.ndarray, iters: int = 30) -> np.n
 
 @dataclass
 class CanonicalForm:
-    """samples (S,) vertex ids; embedding (S, 3) their canonical positions (scan frame, mm);
-    positions (Q, 3) canonical positions of the query vertices (scan frame, mm);
-    stress_history (T,) SMACOF raw stress; rel_stress float = sqrt(stress / sum d^2)."""
+    """A fitted canonical form of a surface region.
+
+    samples (S,) vertex ids; embedding (S, 3) their canonical positions (scan frame, mm);
+    rows (S, N) geodesic distances from the samples to every vertex (mm, inf = unreached);
+    stress_history (T,) SMACOF raw stress; rel_stress float = sqrt(stress / sum d^2);
+    positions (Q, 3) canonical positions of the query vertices given at construction.
+    """
 
     samples: np.ndarray
     embedding: np.ndarray
-    positions: np.ndarray
+    rows: np.ndarray
     stress_history: np.ndarray
     rel_stress: float
+    positions: np.ndarray | None = None
+
+    def place(self, query: np.ndarray, iters: int = 30) -> np.ndarray:
+        """(Q, 3) canonical positions (scan frame, mm) of vertex ids ``query`` (out-of-sample)."""
+        query = np.asarray(query, dtype=np.int64)
+        d_q = self.rows[:, query].T
+        if not np.isfinite(d_q).all():
+            raise ValueError("canonical form: some query vertices are not reached from the samples")
+        return place_out_of_sample(self.embedding, d_q, iters=iters)
 
 
 def canonical_form(vertices: np.ndarray, distance_rows: Callable[[np.ndarray], np.ndarray],
                    query: np.ndarray, region: np.ndarray | None = None, n_samples: int = 100,
                    seed_vertex: int | None = None, max_iter: int = 300) -> CanonicalForm:
-    """Canonical-form positions of the query vertices.
+    """Canonical form of a surface region, with the positions of the query vertices.
 
     Parameters
     ----------
     vertices : (N, 3) scan vertices, mm.
     distance_rows : callable(sources (S,)) -> (S, N) geodesic distances, mm (inf = unreached).
-    query : (Q,) vertex ids to place.
+    query : (Q,) vertex ids to place (more can be placed later with ``CanonicalForm.place``).
     region : (R,) vertex ids the samples are drawn from (default all); e.g. a geodesic disk around
         the nose so hair, neck and shoulders of a raw scan do not dominate the embedding.
     n_samples : number of farthest-point samples S.
@@ -174,7 +187,8 @@ def canonical_form(vertices: np.ndarray, distance_rows: Callable[[np.ndarray], n
     dss = 0.5 * (dss + dss.T)
     np.fill_diagonal(dss, 0.0)
     x, hist = smacof(dss, 3, max_iter=max_iter)
-    y = place_out_of_sample(x, rows[:, query].T)
     r, t = kabsch(x, v[samples], allow_reflection=True)
-    return CanonicalForm(samples=samples, embedding=x @ r.T + t, positions=y @ r.T + t,
-                         stress_history=hist, rel_stress=float(np.sqrt(2 * hist[-1] / np.sum(dss**2))))
+    cf = CanonicalForm(samples=samples, embedding=x @ r.T + t, rows=rows, stress_history=hist,
+                       rel_stress=float(np.sqrt(2 * hist[-1] / np.sum(dss**2))))
+    cf.positions = cf.place(query)
+    return cf

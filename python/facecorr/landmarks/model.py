@@ -48,7 +48,7 @@ DEFAULT_PARAMS = {
     "subnasal_search_radius_mm": 30.0,  # the circle around the subnasal for classes 5/6
     "mds_samples": 80,               # farthest-point samples of the canonical form
     "mds_region_mm": 90.0,           # geodesic radius (around the nose tip) the samples come from
-    "max_candidates": 40,            # per landmark, for BP
+    "max_candidates": 60,            # per landmark and BP pass
     "node_ridge": 1e-4,              # added to the FP covariance diagonal (relative)
 }
 

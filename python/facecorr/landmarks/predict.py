@@ -13,12 +13,14 @@ Stages (their wall times are returned in ``LandmarkResult.timings_s``):
 ``align``       §3.6: Pa's nose points aligned rigidly to the four points in both 5/6 labellings;
                 the labelling with the smaller D_F wins.
 ``candidates``  search regions: scan vertices within ``search_radius[i]`` (Euclidean) of each
-                aligned Pa point, voxel-subsampled to ``candidate_spacing`` mm and capped at
-                ``max_candidates`` (nearest to the Pa point first); FP at each candidate.
+                aligned Pa point, voxel-subsampled (spacing grown with the radius so that about
+                ``max_candidates`` cover the region, at least ``candidate_spacing`` mm); FP at each.
 ``canonical``   canonical form (FMM geodesics + SMACOF, :mod:`.mds`) of the candidates, rotated
                 into the template frame by the inverse of the ``align`` transform.
 ``bp``          loopy max-product BP with the Gaussian node (FP) and edge (relative canonical
                 position) log-potentials.
+``refine``      a second BP over dense candidates (``refine_spacing`` mm) within 1.5 coarse
+                spacings of each coarse winner (coarse-to-fine; the paper uses a single pass).
 
 Circles are subsampled to ``circle_spacing`` mm before FPPCA (a 25 mm geodesic circle holds
 ~2000 vertices of a 1 mm scan; FP at every one is the dominant cost and neighbours 1 mm apart
@@ -54,7 +56,8 @@ NOSE_TIP, SUBNASAL, R_SUBALARE, L_SUBALARE = 6, 7, 4, 5
 #: Prediction settings not stored in the model (they do not depend on training).
 PREDICT_DEFAULTS = {
     "circle_spacing": 2.0,        # mm, subsampling of the geodesic search circles
-    "candidate_spacing": 1.5,     # mm, subsampling of the BP search regions
+    "candidate_spacing": 1.5,     # mm, finest subsampling of the coarse BP search regions
+    "refine_spacing": 1.0,        # mm, candidates of the fine BP pass
     "n_starts": 3,                # nose-tip start hypotheses
     "confidence_radius": 4.0,     # mm
     "low_confidence": 0.3,        # flag below this
@@ -162,21 +165,29 @@ def _two_side_init(pts, tip, sub):
     return np.vstack([pts[np.argmin(s)], pts[np.argmax(s)]]).astype(float)
 
 
-def _candidates(feat: ScanFeatures, model, pa_points, opts):
-    """Per landmark: candidate vertex ids near the aligned Pa point."""
-    cands = []
-    for i in range(len(LANDMARK_NAMES)):
-        ball = np.asarray(feat.tree.query_ball_point(pa_points[i][None], float(model.search_radius[i]))[0], dtype=np.int64)
-        if len(ball) == 0:
-            _, j = feat.tree.query(pa_points[i][None])
-            ball = np.array([int(j[0])])
-        ball = voxel_subsample(feat.vertices, ball, opts["candidate_spacing"])
-        cap = int(model.param("max_candidates"))
-        if len(ball) > cap:
-            d = np.linalg.norm(feat.vertices[ball] - pa_points[i], axis=1)
-            ball = ball[np.argsort(d)[:cap]]
-        cands.append(ball)
-    return cands
+def _ball(feat: ScanFeatures, center: np.ndarray, radius: float, spacing: float, cap: int) -> np.ndarray:
+    """Vertex ids within ``radius`` of a point, voxel-subsampled, at most ``cap`` (nearest first)."""
+    ball = np.asarray(feat.tree.query_ball_point(center[None], float(radius))[0], dtype=np.int64)
+    if len(ball) == 0:
+        _, j = feat.tree.query(center[None])
+        ball = np.array([int(np.asarray(j).ravel()[0])])
+    ball = voxel_subsample(feat.vertices, ball, spacing)
+    if len(ball) > cap:
+        d = np.linalg.norm(feat.vertices[ball] - center, axis=1)
+        ball = ball[np.argsort(d)[:cap]]
+    return ball
+
+
+def _bp(feat, model, cands, canon_of, opts):
+    """Node + edge log-potentials over candidate sets, then loopy max-product."""
+    fps = [feat.fingerprint(c) for c in cands]
+    unary = [log_density(f, model.node_mean[i], model.node_cov[i]) for i, f in enumerate(fps)]
+    pos = [canon_of(c) for c in cands]
+    pairwise = {}
+    for e, (i, j) in enumerate(model.edges):
+        rel = pos[j][None, :, :] - pos[i][:, None, :]
+        pairwise[(int(i), int(j))] = log_density(rel, model.edge_mean[e], model.edge_cov[e])
+    return max_product(unary, pairwise, max_iter=opts["bp_iterations"]), fps
 
 
 def _run_hypothesis(feat, model, start, opts, timer):
@@ -184,28 +195,37 @@ def _run_hypothesis(feat, model, start, opts, timer):
         nose_ids, flags = _nose_points(feat, model, start, opts)
     with timer("align"):
         al = align_graph(model.graph_points, feat.vertices[nose_ids], feat.tree)
+    cap = int(model.param("max_candidates"))
     with timer("candidates"):
-        cands = _candidates(feat, model, al.points, opts)
-        fps = [feat.fingerprint(c) for c in cands]
-        unary = [log_density(f, model.node_mean[i], model.node_cov[i]) for i, f in enumerate(fps)]
+        # Coarse search regions: the spacing grows with the radius so ~cap candidates cover it.
+        spacing = np.maximum(opts["candidate_spacing"], model.search_radius * np.sqrt(np.pi / cap))
+        cands = [_ball(feat, al.points[i], model.search_radius[i], spacing[i], cap)
+                 for i in range(len(LANDMARK_NAMES))]
+        feat.fingerprint(np.concatenate(cands))
     with timer("canonical"):
-        allc = np.unique(np.concatenate(cands))
-        tip = int(nose_ids[2])
-        cf = feat.canonical_positions(allc, tip, float(model.param("mds_region_mm")),
-                                      int(model.param("mds_samples")))
+        cf = feat.canonical_form(np.unique(np.concatenate(cands)), int(nose_ids[2]),
+                                 float(model.param("mds_region_mm")), int(model.param("mds_samples")))
+    cache = {}
+
+    def canon_of(ids):
         # scan frame -> template frame (inverse of the Pa alignment), so relative positions are
         # comparable with training whatever the scan's pose.
-        canon = (cf.positions - al.translation) @ al.rotation
-        pos = {int(v): canon[k] for k, v in enumerate(allc)}
+        missing = np.array([v for v in np.unique(ids).tolist() if v not in cache], dtype=np.int64)
+        if len(missing):
+            with timer("canonical"):
+                p = (cf.place(missing) - al.translation) @ al.rotation
+            cache.update(zip(missing.tolist(), p))
+        return np.array([cache[int(v)] for v in ids])
+
     with timer("bp"):
-        pairwise = {}
-        for e, (i, j) in enumerate(model.edges):
-            ci = np.array([pos[int(v)] for v in cands[i]])
-            cj = np.array([pos[int(v)] for v in cands[j]])
-            rel = cj[None, :, :] - ci[:, None, :]
-            pairwise[(int(i), int(j))] = log_density(rel, model.edge_mean[e], model.edge_cov[e])
-        res = max_product(unary, pairwise, max_iter=opts["bp_iterations"])
-    return dict(nose_ids=nose_ids, flags=flags, alignment=al, cands=cands, fps=fps, bp=res,
+        res, fps = _bp(feat, model, cands, canon_of, opts)
+    # Fine pass: around each coarse winner, a dense candidate set.
+    with timer("refine"):
+        fine = [_ball(feat, feat.vertices[c[res.labels[i]]], 1.5 * spacing[i], opts["refine_spacing"], cap)
+                for i, c in enumerate(cands)]
+        fine = [np.union1d(f, [c[res.labels[i]]]) for i, (f, c) in enumerate(zip(fine, cands))]
+        res, fps = _bp(feat, model, fine, canon_of, opts)
+    return dict(nose_ids=nose_ids, flags=flags, alignment=al, cands=fine, fps=fps, bp=res,
                 rel_stress=cf.rel_stress)
 
 

@@ -66,7 +66,7 @@ def scan_training_sample(scan_path, landmarks_mm: np.ndarray, graph_points: np.n
     snap_d, vid = feat.tree.query(np.asarray(landmarks_mm, dtype=np.float64))
     vid = np.asarray(vid, dtype=np.int64)
     fp = feat.fingerprint(vid)
-    cf = feat.canonical_positions(vid, int(vid[6]), float(p["mds_region_mm"]), int(p["mds_samples"]))
+    cf = feat.canonical_form(vid, int(vid[6]), float(p["mds_region_mm"]), int(p["mds_samples"]))
     r, t = kabsch(graph_points[4:8], landmarks_mm[4:8])
     canon = (cf.positions - t) @ r  # template frame
     rel = canon[edges[:, 1]] - canon[edges[:, 0]]
