@@ -27,28 +27,44 @@ Blendshapes A_k (K = 13 displacement fields, mm, weights meant in [0, 1])
     displacement fields over the template (``blendshape_cosine`` in the npz); the rule is that no
     two kept fields have cosine >= MAX_BLENDSHAPE_COSINE = 0.65. Numbers from the build:
 
-    =====================  ===============================================================
-    kept (recipe)          largest similarities to other candidates (cosine)
-    =====================  ===============================================================
-    jawOpen                mouthLowerDown_L+R 0.83 (dropped), mouthShrugLower -0.91,
-                           mouthClose -0.83, mouthPress_L+R -0.82 (not kept: they undo
-                           jawOpen, so with jawOpen they would only cancel)
-    mouthSmile_L / _R      mouthStretch same side 0.57, mouthDimple same side 0.78 (dropped)
-    mouthFrown_L / _R      mouthStretch same side 0.57
-    mouthStretch_L / _R    mouthPucker -0.58
-    mouthPucker            = (mouthPucker + mouthFunnel) / 2: the two ICT shapes have cosine
-                           0.88 (the same lip protrusion), merged; 0.97 to each of them
-    mouthUpperUp           = mouthUpperUp_L + _R; noseSneer_L+R 0.88 (dropped),
-                           mouthShrugUpper 0.74 (dropped)
-    browInnerUp            = browInnerUp_L + _R; browOuterUp 0.62 (highest kept pair)
-    browOuterUp            = browOuterUp_L + _R
-    browDown_L / _R        browOuterUp same side -0.70 (opposite motions of one brow)
-    =====================  ===============================================================
+    Candidates dropped or merged (cosine to the kept shape, over the template):
 
-    The highest cosine between two kept fields is 0.62 (browInnerUp / browOuterUp), the lowest
-    -0.70 (browDown_L / browOuterUp). Symmetric actions are summed left + right to keep K small;
-    the lip-corner actions stay split because real expressions are often asymmetric there and
-    their left/right cosines are below 0.1.
+    - mouthLowerDown_L+R: 0.83 with jawOpen (the lower lip goes down with the jaw) -> dropped.
+    - mouthShrugLower -0.91, mouthClose -0.83, mouthPress_L+R -0.82 with jawOpen: they undo
+      jawOpen, so next to it they could only cancel it -> not kept.
+    - mouthFunnel: 0.88 with mouthPucker (the same lip protrusion) -> merged, A = (pucker +
+      funnel) / 2, cosine 0.97 to each of the two.
+    - mouthDimple_L/_R: 0.78 with mouthSmile, same side -> dropped.
+    - noseSneer_L+R 0.88 and mouthShrugUpper 0.74 with mouthUpperUp -> dropped.
+    - browInnerUp/browOuterUp of one side: 0.648 -> kept only as left+right sums (0.62).
+
+    Kept, with each one's largest and smallest cosine to the other kept fields
+    (``python -m facecorr.template --build`` stores the matrix as ``blendshape_cosine``):
+
+    ==============  ==========================  ==========================
+    blendshape      max cosine (with)           min cosine (with)
+    ==============  ==========================  ==========================
+    jawOpen         +0.20 (mouthFrown_L/_R)     -0.32 (mouthPucker)
+    mouthSmile_L    +0.57 (mouthStretch_L)      -0.38 (mouthPucker)
+    mouthSmile_R    +0.57 (mouthStretch_R)      -0.38 (mouthPucker)
+    mouthFrown_L    +0.57 (mouthStretch_L)      -0.41 (mouthUpperUp)
+    mouthFrown_R    +0.57 (mouthStretch_R)      -0.41 (mouthUpperUp)
+    mouthStretch_L  +0.57 (mouthFrown_L)        -0.57 (mouthPucker)
+    mouthStretch_R  +0.57 (mouthFrown_R)        -0.57 (mouthPucker)
+    mouthPucker     +0.11 (mouthUpperUp)        -0.57 (mouthStretch_L/_R)
+    mouthUpperUp    +0.40 (mouthSmile_L/_R)     -0.41 (mouthFrown_L/_R)
+    browInnerUp     +0.62 (browOuterUp)         -0.29 (browDown_L/_R)
+    browOuterUp     +0.62 (browInnerUp)         -0.50 (browDown_L/_R)
+    browDown_L      +0.02 (browDown_R)          -0.50 (browOuterUp)
+    browDown_R      +0.02 (browDown_L)          -0.50 (browOuterUp)
+    ==============  ==========================  ==========================
+
+    Recipes: mouthPucker = (ICT mouthPucker + mouthFunnel) / 2; mouthUpperUp, browInnerUp and
+    browOuterUp = the ICT _L + _R shapes; the others are the ICT shape of that name. Symmetric
+    actions are summed to keep K small; the lip-corner actions and browDown stay split because
+    real expressions are often asymmetric there and their left/right cosines are below 0.1.
+    Negative cosines are opposite motions (brows down vs up, lips stretched vs puckered), which
+    the weights in [0, 1] keep apart.
 
 Regions (paper Fig. 7: upper face, chin, mouth), per vertex, ``REGION_NAMES`` order
     mouth
@@ -134,6 +150,7 @@ GRAPH_EDGES = (
 MOUTH_MARGIN_X = 10.0
 MOUTH_MARGIN_Y = 7.0
 CHIN_JAW_FRACTION = 0.5
+REGION_SMOOTHING_PASSES = 3
 
 _FORMAT_VERSION = 1
 
@@ -322,6 +339,13 @@ def _regions(vertices: np.ndarray, adj: sp.csr_matrix, ibug68: np.ndarray,
     labels = np.full(len(vertices), UPPER, dtype=np.int8)
     labels[chin] = CHIN
     labels[mouth] = MOUTH
+    # Majority smoothing over 1-rings: the thin radial triangles around the lips otherwise give
+    # the vertex-wise ellipse test a saw-tooth edge (ties keep the vertex's own label).
+    ring = adj + sp.identity(len(vertices), format="csr")
+    for _ in range(REGION_SMOOTHING_PASSES):
+        onehot = np.eye(len(REGION_NAMES))[labels]
+        votes = ring @ onehot + 0.5 * onehot
+        labels = votes.argmax(axis=1).astype(np.int8)
     # Make every region one connected piece: islands go to the region most of their
     # neighbours belong to (repeat until stable; it converges in a couple of passes).
     for _ in range(10):

@@ -48,10 +48,33 @@ def template_contract(t: Template) -> dict:
     }
 
 
-def _landmark_overlay(ax, t: Template, rotation):
-    from .meshplot import project, visible_points
+def visible_points(vertices, faces, points, rotation, tol=0.5) -> np.ndarray:
+    """(P,) bool: whether each point (on or near the surface) is unoccluded in the view.
 
-    p = project(t.graph_points, rotation)
+    A point is hidden when a triangle covering its projection lies more than ``tol`` mm nearer
+    the viewer (a depth test, not a normal test: in a side view symmetric points project onto
+    each other). ``rotation`` as in :func:`facecorr.render.draw_mesh` (viewer on +z).
+    """
+    v = np.asarray(vertices, float) @ np.asarray(rotation).T
+    p = np.asarray(points, float) @ np.asarray(rotation).T
+    a, b, c = (v[np.asarray(faces)[:, k]] for k in range(3))
+    e1, e2 = (b - a)[:, :2], (c - a)[:, :2]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    ok = np.abs(det) > 1e-12
+    det = np.where(ok, det, 1.0)
+    out = np.ones(len(p), bool)
+    for i, q in enumerate(p):
+        w = q[:2] - a[:, :2]
+        s = (w[:, 0] * e2[:, 1] - w[:, 1] * e2[:, 0]) / det
+        t = (e1[:, 0] * w[:, 1] - e1[:, 1] * w[:, 0]) / det
+        cover = ok & (s >= 0) & (t >= 0) & (s + t <= 1)
+        depth = a[cover, 2] + s[cover] * (b - a)[cover, 2] + t[cover] * (c - a)[cover, 2]
+        out[i] = not (depth > q[2] + tol).any()
+    return out
+
+
+def _landmark_overlay(ax, t: Template, rotation):
+    p = t.graph_points @ rotation.T
     visible = visible_points(t.vertices, t.faces, t.graph_points, rotation)
     for i, j in t.graph_edges:
         if visible[i] and visible[j]:
@@ -70,7 +93,7 @@ def draw_template_png(out_path: str | Path, t: Template | None = None, dpi: int 
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
-    from .meshplot import draw_mesh
+    from .render import draw_mesh, view_rotation
 
     t = t or load_template()
     face_region = np.array([np.bincount(r, minlength=3).argmax() for r in t.regions[t.faces]])
@@ -81,11 +104,13 @@ def draw_template_png(out_path: str | Path, t: Template | None = None, dpi: int 
     nrow_b = -(-k // ncol)
     fig = plt.figure(figsize=(3.2 * ncol, 4.6 + 3.3 * nrow_b))
     gs = fig.add_gridspec(1 + nrow_b, ncol, height_ratios=[1.45] + [1] * nrow_b, hspace=0.15, wspace=0.02)
-    views = [("front", 0, 0), ("three-quarter (subject's left)", 35, 0), ("right side", -90, 0)]
+    # render.view_rotation: positive yaw turns the subject's right (-x) towards the viewer.
+    views = [("front", 0, 0), ("three-quarter (subject's left)", -35, 0), ("subject's right side", 90, 0)]
     top = gs[0, :].subgridspec(1, 3, wspace=0.02)
     for c, (title, yaw, pitch) in enumerate(views):
         ax = fig.add_subplot(top[0, c])
-        rot, _ = draw_mesh(ax, t.vertices, t.faces, face_colors=face_colors, yaw=yaw, pitch=pitch)
+        rot = view_rotation(yaw, pitch)
+        draw_mesh(ax, t.vertices, t.faces, rotation=rot, face_colors=face_colors)
         _landmark_overlay(ax, t, rot)
         ax.set_title(title, fontsize=10)
     fig.legend(handles=[Patch(color=REGION_COLORS[i], label=f"{n} ({(t.regions == i).sum()} v)")
@@ -96,8 +121,8 @@ def draw_template_png(out_path: str | Path, t: Template | None = None, dpi: int 
     for b in range(k):
         ax = fig.add_subplot(gs[1 + b // ncol, b % ncol])
         mag = np.linalg.norm(t.blendshapes[b], axis=1)
-        draw_mesh(ax, t.vertices + t.blendshapes[b], t.faces, vertex_values=mag, cmap="YlOrRd",
-                  vmin=0, vmax=mag.max(), yaw=25)
+        draw_mesh(ax, t.vertices + t.blendshapes[b], t.faces, rotation=view_rotation(-25, 0),
+                  values=mag, cmap="YlOrRd", vmin=0, vmax=mag.max())
         ax.set_title(f"{t.blendshape_names[b]} (max {mag.max():.1f} mm)", fontsize=9)
     fig.suptitle(f"facecorr template: {t.n_vertices} vertices, {len(t.faces)} faces, "
                  f"{k} blendshapes (below: each at weight 1, colour = |A_k| from 0 to its max)",
