@@ -70,7 +70,9 @@ def draw_mesh(ax, vertices, faces, *, rotation=None, values=None, cmap="viridis"
     order = np.argsort(tri[:, :, 2].mean(axis=1))  # far first
     from matplotlib.collections import PolyCollection
 
-    pc = PolyCollection(tri[order][:, :, :2], facecolors=np.clip(rgb[order], 0, 1), edgecolors="none")
+    col = np.clip(rgb[order], 0, 1)
+    # edges in the face colour close the hairline seams antialiasing leaves between triangles
+    pc = PolyCollection(tri[order][:, :, :2], facecolors=col, edgecolors=col, linewidths=0.25)
     ax.add_collection(pc)
     if points is not None:
         p = np.asarray(points, float) @ rot.T

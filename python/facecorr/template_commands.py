@@ -96,8 +96,8 @@ def draw_template_png(out_path: str | Path, t: Template | None = None, dpi: int 
     from .render import draw_mesh, view_rotation
 
     t = t or load_template()
-    face_region = np.array([np.bincount(r, minlength=3).argmax() for r in t.regions[t.faces]])
-    face_colors = REGION_COLORS[face_region]
+    # mixed triangles get the mean of their corners' colours: a soft edge instead of a saw-tooth
+    face_colors = REGION_COLORS[t.regions[t.faces]].mean(axis=1)
 
     k = t.n_blendshapes
     ncol = 5
