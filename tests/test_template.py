@@ -10,7 +10,7 @@ from scipy.sparse.csgraph import connected_components
 
 from facecorr import names
 from facecorr.template import (
-    ICT_MODEL_PATH, MAX_BLENDSHAPE_COSINE, REGION_NAMES, TEMPLATE_PATH, build_template,
+    ICT_MODEL_PATH, MAX_BLENDSHAPE_COSINE, MIN_BLENDSHAPE_COSINE, REGION_NAMES, TEMPLATE_PATH, build_template,
     load_template, template_from_arrays,
 )
 
@@ -148,7 +148,7 @@ def test_blendshapes_not_redundant_and_local(t):
     cos = d @ d.T
     np.testing.assert_allclose(cos, t.blendshape_cosine, atol=1e-5)
     off = cos[~np.eye(len(cos), dtype=bool)]
-    assert off.max() < MAX_BLENDSHAPE_COSINE
+    assert MIN_BLENDSHAPE_COSINE < off.min() and off.max() < MAX_BLENDSHAPE_COSINE
     for k, name in enumerate(t.blendshape_names):
         mag = np.linalg.norm(t.blendshapes[k], axis=1)
         assert mag.max() > 3.0, name  # a real motion, mm

@@ -20,18 +20,25 @@ Rest pose A0 (6706 vertices, 13120 triangles)
     outer crop line, the two eye openings and the mouth slit (open between the lips, as in the
     model). No decimation: 6706 vertices is already inside the 5-10k budget.
 
-Blendshapes A_k (K = 13 displacement fields, mm, weights meant in [0, 1])
+Blendshapes A_k (K = 14 displacement fields, mm, weights meant in [0, 1])
     Chosen from the 53 ICT (ARKit-named) expression shapes, mostly jaw, lips and mouth corners
     plus brows, as the paper asks (Sec. 4.2: "no two blendshapes add the same kind of
     displacement"). Redundancy is measured by the cosine similarity of the flattened
     displacement fields over the template (``blendshape_cosine`` in the npz); the rule is that no
-    two kept fields have cosine >= MAX_BLENDSHAPE_COSINE = 0.65. Numbers from the build:
+    two kept fields have cosine >= MAX_BLENDSHAPE_COSINE = 0.65 (the same motion twice) or
+    <= MIN_BLENDSHAPE_COSINE = -0.95 (a motion and its exact undoing, which could only cancel).
+    Numbers from the build (benches/template_coverage.py measures what the set reproduces):
 
     Candidates dropped or merged (cosine to the kept shape, over the template):
 
     - mouthLowerDown_L+R: 0.83 with jawOpen (the lower lip goes down with the jaw) -> dropped.
-    - mouthShrugLower -0.91, mouthClose -0.83, mouthPress_L+R -0.82 with jawOpen: they undo
-      jawOpen, so next to it they could only cancel it -> not kept.
+    - mouthClose -0.83 and mouthPress_L+R -0.82 with jawOpen, 0.84 and 0.83 with mouthShrugLower
+      (they close the lips, mostly what the chin raiser does) -> dropped.
+    - mouthShrugLower (chin raiser, FACS AU17, in sadness, anger, disgust) is kept although its
+      cosine with jawOpen is -0.91: it is the only way to move the chin and lower lip *up*
+      (weights are >= 0), and without it 72% of its displacement over mouth + chin is left
+      unexplained by the other shapes (benches/template_coverage.py). The pair's Gram matrix
+      has eigenvalues 1.91 and 0.09: jointly fittable, not degenerate.
     - mouthFunnel: 0.88 with mouthPucker (the same lip protrusion) -> merged, A = (pucker +
       funnel) / 2, cosine 0.97 to each of the two.
     - mouthDimple_L/_R: 0.78 with mouthSmile, same side -> dropped.
@@ -44,15 +51,16 @@ Blendshapes A_k (K = 13 displacement fields, mm, weights meant in [0, 1])
     ==============  ==========================  ==========================
     blendshape      max cosine (with)           min cosine (with)
     ==============  ==========================  ==========================
-    jawOpen         +0.20 (mouthFrown_L/_R)     -0.32 (mouthPucker)
+    jawOpen         +0.20 (mouthFrown_L/_R)     -0.91 (mouthShrugLower)
     mouthSmile_L    +0.57 (mouthStretch_L)      -0.38 (mouthPucker)
     mouthSmile_R    +0.57 (mouthStretch_R)      -0.38 (mouthPucker)
     mouthFrown_L    +0.57 (mouthStretch_L)      -0.41 (mouthUpperUp)
     mouthFrown_R    +0.57 (mouthStretch_R)      -0.41 (mouthUpperUp)
     mouthStretch_L  +0.57 (mouthFrown_L)        -0.57 (mouthPucker)
     mouthStretch_R  +0.57 (mouthFrown_R)        -0.57 (mouthPucker)
-    mouthPucker     +0.11 (mouthUpperUp)        -0.57 (mouthStretch_L/_R)
+    mouthPucker     +0.26 (mouthShrugLower)     -0.57 (mouthStretch_L/_R)
     mouthUpperUp    +0.40 (mouthSmile_L/_R)     -0.41 (mouthFrown_L/_R)
+    mouthShrugLower +0.26 (mouthPucker)         -0.91 (jawOpen)
     browInnerUp     +0.62 (browOuterUp)         -0.29 (browDown_L/_R)
     browOuterUp     +0.62 (browInnerUp)         -0.50 (browDown_L/_R)
     browDown_L      +0.02 (browDown_R)          -0.50 (browOuterUp)
@@ -63,8 +71,8 @@ Blendshapes A_k (K = 13 displacement fields, mm, weights meant in [0, 1])
     browOuterUp = the ICT _L + _R shapes; the others are the ICT shape of that name. Symmetric
     actions are summed to keep K small; the lip-corner actions and browDown stay split because
     real expressions are often asymmetric there and their left/right cosines are below 0.1.
-    Negative cosines are opposite motions (brows down vs up, lips stretched vs puckered), which
-    the weights in [0, 1] keep apart.
+    Negative cosines are opposite motions (brows down vs up, lips stretched vs puckered, jaw
+    down vs chin up), which the weights in [0, 1] keep apart.
 
 Regions (paper Fig. 7: upper face, chin, mouth), per vertex, ``REGION_NAMES`` order
     mouth
@@ -125,14 +133,17 @@ BLENDSHAPE_RECIPES: tuple[tuple[str, dict[str, float]], ...] = (
     ("mouthStretch_R", {"mouthStretch_R": 1.0}),
     ("mouthPucker", {"mouthPucker": 0.5, "mouthFunnel": 0.5}),
     ("mouthUpperUp", {"mouthUpperUp_L": 1.0, "mouthUpperUp_R": 1.0}),
+    ("mouthShrugLower", {"mouthShrugLower": 1.0}),
     ("browInnerUp", {"browInnerUp_L": 1.0, "browInnerUp_R": 1.0}),
     ("browOuterUp", {"browOuterUp_L": 1.0, "browOuterUp_R": 1.0}),
     ("browDown_L", {"browDown_L": 1.0}),
     ("browDown_R", {"browDown_R": 1.0}),
 )
 
-#: No two kept blendshapes may have a displacement cosine similarity at or above this.
+#: No two kept blendshapes may have a displacement cosine similarity at or above this ...
 MAX_BLENDSHAPE_COSINE = 0.65
+#: ... or at or below this (nearly exactly opposite fields would only cancel each other).
+MIN_BLENDSHAPE_COSINE = -0.95
 
 #: Landmark-graph edges, pairs of indices into LANDMARK_NAMES (0 right outer eye corner,
 #: 1 right inner, 2 left inner, 3 left outer, 4 right subalare, 5 left subalare, 6 nose tip,
@@ -415,8 +426,8 @@ def build_template(model_path: str | Path = ICT_MODEL_PATH) -> dict[str, np.ndar
     blend = np.stack(blend)
     cos = blendshape_cosine(blend)
     off = cos[~np.eye(len(cos), dtype=bool)]
-    if off.max() >= MAX_BLENDSHAPE_COSINE:
-        raise RuntimeError(f"redundant blendshapes: max cosine {off.max():.3f}")
+    if off.max() >= MAX_BLENDSHAPE_COSINE or off.min() <= MIN_BLENDSHAPE_COSINE:
+        raise RuntimeError(f"redundant blendshapes: cosines {off.min():.3f}..{off.max():.3f}")
 
     adj = _adjacency(len(vertices), _edges(faces)[0])
     regions = _regions(vertices, adj, ibug68, blend[[n for n, _ in BLENDSHAPE_RECIPES].index("jawOpen")])
