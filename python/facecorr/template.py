@@ -80,11 +80,14 @@ Regions (paper Fig. 7: upper face, chin, mouth), per vertex, ``REGION_NAMES`` or
         contour (iBUG 48-59) with semi-axes half the mouth width + 10 mm and half the lip height
         + 7 mm (its top stays below the subnasal point).
     chin
-        the jaw below the lower lip: vertices below the mouth centre, outside the mouth, that
-        jawOpen moves by at least half of its largest displacement (this selects the chin and
-        the front of the mandible, not the cheeks near the jaw hinge).
+        the jaw below the lower lip: vertices below the lowest lip point (iBUG 57), outside the
+        mouth, that jawOpen moves by at least 35% of its largest displacement (the chin and the
+        front of the mandible, not the cheeks near the jaw hinge), and whose rest-pose normal is
+        within 60 deg of +z. The last condition leaves out the under-chin surface, which a frontal scanner does
+        not see: the paper's expression fit waits until 80% of the chin vertices have a valid
+        nearest neighbour on the scan, which an unseen half of the region would never allow.
     upper
-        the rest (forehead, eyes, nose, cheeks).
+        the rest (forehead, eyes, nose, cheeks, and the under-chin surface).
     Each region is one edge-connected piece (small islands are given to the neighbouring region).
 
 Landmarks
@@ -160,7 +163,8 @@ GRAPH_EDGES = (
 # Region geometry (mm), see the module docstring.
 MOUTH_MARGIN_X = 10.0
 MOUTH_MARGIN_Y = 7.0
-CHIN_JAW_FRACTION = 0.5
+CHIN_JAW_FRACTION = 0.35
+CHIN_MIN_NORMAL_Z = 0.5  # cos 60 deg: the chin region is what a frontal scanner sees
 REGION_SMOOTHING_PASSES = 3
 
 _FORMAT_VERSION = 1
@@ -331,7 +335,16 @@ def _boundary_loops(faces: np.ndarray, vertices: np.ndarray, ibug68: np.ndarray)
     return named
 
 
-def _regions(vertices: np.ndarray, adj: sp.csr_matrix, ibug68: np.ndarray,
+def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    fn = np.cross(b - a, c - a)
+    n = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def _regions(vertices: np.ndarray, faces: np.ndarray, adj: sp.csr_matrix, ibug68: np.ndarray,
              jaw_displacement: np.ndarray) -> np.ndarray:
     x, y = vertices[:, 0], vertices[:, 1]
     lip = vertices[ibug68[48:60]]
@@ -346,7 +359,8 @@ def _regions(vertices: np.ndarray, adj: sp.csr_matrix, ibug68: np.ndarray,
     del lip
     mouth = ((x - cx) / a) ** 2 + ((y - cy) / b) ** 2 <= 1.0
     jaw_mag = np.linalg.norm(jaw_displacement, axis=1)
-    chin = (jaw_mag >= CHIN_JAW_FRACTION * jaw_mag.max()) & ~mouth & (y < cy)
+    facing = _vertex_normals(vertices, faces)[:, 2] >= CHIN_MIN_NORMAL_Z
+    chin = (jaw_mag >= CHIN_JAW_FRACTION * jaw_mag.max()) & facing & ~mouth & (y < bottom[1])
     labels = np.full(len(vertices), UPPER, dtype=np.int8)
     labels[chin] = CHIN
     labels[mouth] = MOUTH
@@ -430,7 +444,7 @@ def build_template(model_path: str | Path = ICT_MODEL_PATH) -> dict[str, np.ndar
         raise RuntimeError(f"redundant blendshapes: cosines {off.min():.3f}..{off.max():.3f}")
 
     adj = _adjacency(len(vertices), _edges(faces)[0])
-    regions = _regions(vertices, adj, ibug68, blend[[n for n, _ in BLENDSHAPE_RECIPES].index("jawOpen")])
+    regions = _regions(vertices, faces, adj, ibug68, blend[[n for n, _ in BLENDSHAPE_RECIPES].index("jawOpen")])
     loops = _boundary_loops(faces, vertices, ibug68)
 
     out = {
