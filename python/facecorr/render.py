@@ -29,7 +29,8 @@ def view_rotation(yaw_deg: float = 0.0, pitch_deg: float = 0.0) -> np.ndarray:
 
 
 def draw_mesh(ax, vertices, faces, *, rotation=None, values=None, cmap="viridis", vmin=None,
-              vmax=None, base_color=(0.85, 0.78, 0.72), points=None, point_color="red"):
+              vmax=None, base_color=(0.85, 0.78, 0.72), points=None, point_color="red",
+              face_colors=None):
     """Draw a shaded mesh on a 2-D matplotlib axis, viewed along -z after ``rotation``.
 
     Parameters
@@ -38,8 +39,10 @@ def draw_mesh(ax, vertices, faces, *, rotation=None, values=None, cmap="viridis"
     rotation : (3, 3) applied to the vertices first (default identity).
     values : (N,) per-vertex scalars to colour by (shaded), or None for a plain skin colour.
     points : (K, 3) optional points (same frame) drawn as dots on top.
+    face_colors : (M, 3) optional RGB in [0, 1] per triangle (shaded), used when ``values`` is None.
     Returns the ScalarMappable of ``values`` (for a colour bar) or None.
     """
+    import matplotlib
     import matplotlib.cm as cm
     import matplotlib.colors as mcolors
 
@@ -53,19 +56,23 @@ def draw_mesh(ax, vertices, faces, *, rotation=None, values=None, cmap="viridis"
     light /= np.linalg.norm(light)
     shade = 0.25 + 0.75 * np.abs(n @ light)
     mappable = None
-    if values is None:
+    if values is None and face_colors is not None:
+        rgb = np.asarray(face_colors, float) * shade[:, None]
+    elif values is None:
         rgb = np.outer(shade, base_color)
     else:
         fv = np.asarray(values, float)[f].mean(axis=1)
         norm = mcolors.Normalize(vmin=np.nanmin(fv) if vmin is None else vmin,
                                  vmax=np.nanmax(fv) if vmax is None else vmax)
-        cmap_ = cm.get_cmap(cmap) if isinstance(cmap, str) else cmap
+        cmap_ = matplotlib.colormaps[cmap] if isinstance(cmap, str) else cmap  # cm.get_cmap is gone in mpl 3.9
         rgb = cmap_(norm(np.nan_to_num(fv)))[:, :3] * shade[:, None]
         mappable = cm.ScalarMappable(norm=norm, cmap=cmap_)
     order = np.argsort(tri[:, :, 2].mean(axis=1))  # far first
     from matplotlib.collections import PolyCollection
 
-    pc = PolyCollection(tri[order][:, :, :2], facecolors=np.clip(rgb[order], 0, 1), edgecolors="none")
+    col = np.clip(rgb[order], 0, 1)
+    # edges in the face colour close the hairline seams antialiasing leaves between triangles
+    pc = PolyCollection(tri[order][:, :, :2], facecolors=col, edgecolors=col, linewidths=0.25)
     ax.add_collection(pc)
     if points is not None:
         p = np.asarray(points, float) @ rot.T
