@@ -124,3 +124,15 @@ def test_bad_input():
         smacof(np.full((5, 5), np.nan))
     with pytest.raises(ValueError, match=r"\(Q, 4\)"):
         place_out_of_sample(np.zeros((4, 3)), np.zeros((2, 3)))
+
+
+def test_out_of_sample_with_unreached_samples():
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(20, 3)) * 10
+    q = rng.normal(size=(30, 3)) * 8
+    d_q = np.linalg.norm(q[:, None] - x[None], axis=-1)
+    d_q[:, :8] = np.inf  # 8 samples do not reach any query point
+    d_q[0, 8:] = np.inf  # the first point is reached by nobody
+    y = place_out_of_sample(x, d_q, iters=200)
+    assert np.isnan(y[0]).all()
+    np.testing.assert_allclose(y[1:], q[1:], atol=1e-2)  # 200 Guttman steps from the nearest sample

@@ -22,7 +22,8 @@ def make_model(seed=0, s=7):
         radii=np.linspace(5, 35, s), classifier=clf, node_mean=rng.normal(size=(8, s)),
         node_cov=a @ a.transpose(0, 2, 1) + np.eye(s), edges=edges, edge_mean=rng.normal(size=(len(edges), 3)),
         edge_cov=b @ b.transpose(0, 2, 1) + np.eye(3), graph_points=rng.normal(size=(8, 3)) * 30,
-        search_radius=np.full(8, 12.0), params={"nose_search_radius_mm": 25.0, "trained_on": "test"})
+        search_radius=np.full(8, 12.0), nose_pair_mean=np.full((4, 4), 20.0) - 20 * np.eye(4),
+        nose_pair_std=np.full((4, 4), 3.0), params={"nose_search_radius_mm": 25.0, "trained_on": "test"})
 
 
 def test_round_trip(tmp_path):
@@ -62,6 +63,7 @@ def _corrupt(tmp_path, **changes):
     ({"edge_cov": -np.tile(np.eye(3), (6, 1, 1))}, "positive definite"),
     ({"params": np.array("[1, 2]")}, "JSON object"),
     ({"landmark_names": np.array(["a"] * 8)}, "landmark names"),
+    ({"nose_pair_std": np.zeros((4, 4))}, "nose_pair_std"),
 ])
 def test_validation_errors(tmp_path, changes, match):
     with pytest.raises(ModelError, match=match) as e:

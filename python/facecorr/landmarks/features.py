@@ -48,6 +48,7 @@ class ScanFeatures:
         self.solver = GeodesicSolver(self.vertices, self.faces)
         self.tree = KDTree(self.vertices)
         self._fp = {}
+        self._cf = {}
 
     def fingerprint(self, ids) -> np.ndarray:
         """(len(ids), S) FP descriptors at vertex ids (cached)."""
@@ -73,6 +74,11 @@ class ScanFeatures:
         Samples are drawn from the geodesic disk of ``region_radius`` around ``center`` (the nose
         tip), so hair, neck and shoulders of a raw scan do not enter the embedding.
         """
+        key = (int(center), float(region_radius), int(n_samples))
+        if key in self._cf:
+            cf = self._cf[key]
+            cf.positions = cf.place(query)
+            return cf
         region = self.geodesic_disk(center, region_radius)
         if len(region) < 10:
             raise ValueError("canonical form: the region around the nose has fewer than 10 vertices")
@@ -82,5 +88,7 @@ class ScanFeatures:
             return self.solver.distance_matrix(np.asarray(sources, dtype=np.int64),
                                                max_distance=2.0 * region_radius)
 
-        return canonical_form(self.vertices, rows, np.asarray(query, dtype=np.int64), region=region,
-                              n_samples=n_samples, seed_vertex=int(center))
+        cf = canonical_form(self.vertices, rows, np.asarray(query, dtype=np.int64), region=region,
+                            n_samples=n_samples, seed_vertex=int(center))
+        self._cf[key] = cf
+        return cf

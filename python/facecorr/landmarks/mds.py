@@ -107,13 +107,19 @@ def place_out_of_sample(x: np.ndarray, d_q: np.ndarray, iters: int = 30) -> np.n
     """Positions (Q, k) of new points given their distances d_q (Q, S) to embedded samples x (S, k).
 
     Start: landmark MDS (Nystrom) triangulation; then per-point Guttman iterations on the point's
-    stress to the samples (each step cannot increase it).
+    stress to the samples (each step cannot increase it). Infinite distances (samples that do not
+    reach the point) are left out of that point's stress; a point reached by fewer than k + 1
+    samples gets NaN.
     """
     x = np.asarray(x, dtype=np.float64)
     d_q = np.asarray(d_q, dtype=np.float64)
     s, k = x.shape
     if d_q.ndim != 2 or d_q.shape[1] != s:
         raise ValueError(f"place_out_of_sample: d_q must be (Q, {s}), got {d_q.shape}")
+    w = np.isfinite(d_q)
+    full = w.all(axis=1)
+    dz = np.where(w, d_q, 0.0)
+    y = np.empty((len(d_q), k))
     # LMDS: with centred samples Xc, ||y - x_j||^2 - mean_i ||x_j - x_i||^2 = |y|^2 - 2 y.x_j - const,
     # and pinv(Xc) kills constants, so y = -1/2 pinv(Xc) (d_q^2 - mean_d2).
     mu = x.mean(0)
@@ -121,12 +127,18 @@ def place_out_of_sample(x: np.ndarray, d_q: np.ndarray, iters: int = 30) -> np.n
     dx2 = np.linalg.norm(x[:, None] - x[None], axis=-1) ** 2
     mean_d2 = dx2.mean(axis=1)
     pinv = np.linalg.pinv(xc)  # (k, S)
-    y = -0.5 * (d_q**2 - mean_d2[None]) @ pinv.T + mu
+    y[full] = -0.5 * (dz[full] ** 2 - mean_d2[None]) @ pinv.T + mu
+    if (~full).any():  # partial rows: start at the nearest reached sample
+        near = np.argmin(np.where(w[~full], d_q[~full], np.inf), axis=1)
+        y[~full] = x[near]
+    cnt = w.sum(axis=1)
     for _ in range(iters):
         diff = y[:, None, :] - x[None]  # (Q, S, k)
         dist = np.linalg.norm(diff, axis=-1)
-        ratio = np.divide(d_q, dist, out=np.zeros_like(d_q), where=dist > 1e-12)
-        y = np.mean(x[None] + ratio[..., None] * diff, axis=1)
+        ratio = np.divide(dz, dist, out=np.zeros_like(dz), where=dist > 1e-12)
+        terms = (x[None] + ratio[..., None] * diff) * w[..., None]
+        y = terms.sum(axis=1) / np.maximum(cnt, 1)[:, None]
+    y[cnt < k + 1] = np.nan
     return y
 
 
@@ -148,12 +160,10 @@ class CanonicalForm:
     positions: np.ndarray | None = None
 
     def place(self, query: np.ndarray, iters: int = 30) -> np.ndarray:
-        """(Q, 3) canonical positions (scan frame, mm) of vertex ids ``query`` (out-of-sample)."""
+        """(Q, 3) canonical positions (scan frame, mm) of vertex ids ``query`` (out-of-sample);
+        NaN rows for vertices (nearly) unreached from the samples (another component)."""
         query = np.asarray(query, dtype=np.int64)
-        d_q = self.rows[:, query].T
-        if not np.isfinite(d_q).all():
-            raise ValueError("canonical form: some query vertices are not reached from the samples")
-        return place_out_of_sample(self.embedding, d_q, iters=iters)
+        return place_out_of_sample(self.embedding, self.rows[:, query].T, iters=iters)
 
 
 def canonical_form(vertices: np.ndarray, distance_rows: Callable[[np.ndarray], np.ndarray],
@@ -178,10 +188,11 @@ def canonical_form(vertices: np.ndarray, distance_rows: Callable[[np.ndarray], n
     samples = region[farthest_point_sample(v[region], n_samples, start=start)]
     rows = np.asarray(distance_rows(samples), dtype=np.float64)
     dss = rows[:, samples]
-    ok = np.isfinite(dss).all(axis=1) & np.isfinite(rows[:, query]).all(axis=1)
+    # Keep the samples connected to the seed's component (a raw scan can have islands).
+    ok = np.isfinite(dss[0]) if seed_vertex is not None else np.isfinite(dss).sum(1) > len(dss) // 2
+    ok &= np.isfinite(dss[:, ok]).all(axis=1)
     if ok.sum() < 4:
-        raise ValueError("canonical_form: fewer than 4 samples reach the query vertices (disconnected surface?)")
-    # Keep the samples connected to everything we need (a raw scan can have islands).
+        raise ValueError("canonical_form: fewer than 4 connected samples (disconnected surface?)")
     samples, rows = samples[ok], rows[ok]
     dss = rows[:, samples]
     dss = 0.5 * (dss + dss.T)

@@ -19,6 +19,9 @@ edge_mean, edge_cov           (E, 3), (E, 3, 3) Gaussian edge potentials: canoni
 graph_points                  (L, 3)        landmark-graph template Pa, mm, template frame
 search_radius                 (L,)          BP candidate region radius around each aligned Pa
                                             point, mm
+nose_pair_mean, nose_pair_std (4, 4), (4, 4) Euclidean distances between the nose points
+                                            (right subalare, left subalare, tip, subnasal), mm,
+                                            left/right pooled (the sides are unknown when used)
 params                        () str        JSON: the scalar settings (nose search radius, MDS
                                             sample count, ...) and training provenance
 ============================  ============  =====================================================
@@ -47,7 +50,7 @@ DEFAULT_PARAMS = {
     "nose_search_radius_mm": 25.0,   # paper's r: the geodesic circle around the nose-tip start
     "subnasal_search_radius_mm": 30.0,  # the circle around the subnasal for classes 5/6
     "mds_samples": 80,               # farthest-point samples of the canonical form
-    "mds_region_mm": 90.0,           # geodesic radius (around the nose tip) the samples come from
+    "mds_region_mm": 90.0,           # geodesic radius (around the subnasal) the samples come from
     "max_candidates": 60,            # per landmark and BP pass
     "node_ridge": 1e-4,              # added to the FP covariance diagonal (relative)
 }
@@ -66,6 +69,8 @@ class LandmarkModel:
     edge_cov: np.ndarray
     graph_points: np.ndarray
     search_radius: np.ndarray
+    nose_pair_mean: np.ndarray
+    nose_pair_std: np.ndarray
     params: dict = field(default_factory=dict)
     source: str | None = None
 
@@ -84,7 +89,8 @@ class LandmarkModel:
             sigma=c.sigma, ellipse_centers=c.ellipse_centers, ellipse_A=c.ellipse_A,
             node_mean=self.node_mean, node_cov=self.node_cov, edges=self.edges.astype(np.int64),
             edge_mean=self.edge_mean, edge_cov=self.edge_cov, graph_points=self.graph_points,
-            search_radius=self.search_radius, params=np.array(json.dumps(self.params, sort_keys=True)),
+            search_radius=self.search_radius, nose_pair_mean=self.nose_pair_mean,
+            nose_pair_std=self.nose_pair_std, params=np.array(json.dumps(self.params, sort_keys=True)),
         )
         validate_arrays(arrays, str(path))
         with atomic_path(path) as tmp:
@@ -96,6 +102,7 @@ _SHAPES = {
     "sigma": ("L",), "ellipse_centers": ("L", "D"), "ellipse_A": ("L", "D", "D"),
     "node_mean": ("L", "S"), "node_cov": ("L", "S", "S"), "edges": ("E", 2), "edge_mean": ("E", 3),
     "edge_cov": ("E", 3, 3), "graph_points": ("L", 3), "search_radius": ("L",),
+    "nose_pair_mean": (4, 4), "nose_pair_std": (4, 4),
 }
 
 
@@ -128,6 +135,9 @@ def validate_arrays(arrays: dict, name: str) -> None:
         raise ModelError(f"{name}: 'edges' must pair distinct landmark indices in [0, {dims['L']})")
     if (np.asarray(arrays["radii"]) <= 0).any() or (np.asarray(arrays["search_radius"]) <= 0).any():
         raise ModelError(f"{name}: radii and search radii must be positive (mm)")
+    off = ~np.eye(4, dtype=bool)
+    if (np.asarray(arrays["nose_pair_std"])[off] <= 0).any():
+        raise ModelError(f"{name}: 'nose_pair_std' must be positive off the diagonal (mm)")
     for key in ("node_cov", "edge_cov", "ellipse_A"):
         for k, m in enumerate(np.asarray(arrays[key])):
             if not np.allclose(m, m.T, rtol=1e-6, atol=1e-12) or np.linalg.eigvalsh(0.5 * (m + m.T)).min() <= 0:
@@ -169,4 +179,5 @@ def load_model(path=None) -> LandmarkModel:
         node_cov=arrays["node_cov"].astype(float), edges=arrays["edges"].astype(np.int64),
         edge_mean=arrays["edge_mean"].astype(float), edge_cov=arrays["edge_cov"].astype(float),
         graph_points=arrays["graph_points"].astype(float), search_radius=arrays["search_radius"].astype(float),
+        nose_pair_mean=arrays["nose_pair_mean"].astype(float), nose_pair_std=arrays["nose_pair_std"].astype(float),
         params=json.loads(str(arrays["params"])), source=name)

@@ -58,7 +58,8 @@ PREDICT_DEFAULTS = {
     "circle_spacing": 2.0,        # mm, subsampling of the geodesic search circles
     "candidate_spacing": 1.5,     # mm, finest subsampling of the coarse BP search regions
     "refine_spacing": 1.0,        # mm, candidates of the fine BP pass
-    "n_starts": 3,                # nose-tip start hypotheses
+    "n_starts": 3,                # nose-tip (and subnasal) start umbilics
+    "n_tips": 2,                  # nose-tip choices per start
     "confidence_radius": 4.0,     # mm
     "low_confidence": 0.3,        # flag below this
     "bp_iterations": 60,
@@ -114,41 +115,109 @@ def _closest_labelled(ids, labels, dist, cls):
     return int(ids[k])
 
 
-def _nose_points(feat: ScanFeatures, model, start: int, opts) -> tuple[np.ndarray, list]:
-    """Four nose points (side A, side B, tip, subnasal) as vertex ids, from a nose-tip start."""
+def _dist_logp(model, a: int, b: int, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+    """(len(pa), len(pb)) Gaussian log-potential of the Euclidean distance between nose points."""
+    d = np.linalg.norm(pa[:, None] - pb[None], axis=-1)
+    mu, sd = model.nose_pair_mean[a, b], model.nose_pair_std[a, b]
+    return -0.5 * ((d - mu) / sd) ** 2
+
+
+def _labelled_or_best(ids, labels, ll, cls, k_extra=5):
+    """Candidates for class cls: the vertices FPPCA labels cls, plus the k_extra with the best
+    node log-likelihood (so one unlucky ellipsoid does not end the search)."""
+    m = labels[:, cls].copy()
+    m[np.argsort(-ll)[:k_extra]] = True
+    return ids[m], ll[m]
+
+
+def _nose_points(feat: ScanFeatures, model, start: int, opts) -> list:
+    """Nose hypotheses [(ids (4,) = side A, side B, tip, subnasal vertex ids, flags), ...] from a start.
+
+    Paper §3.5 with one documented change: instead of taking, per class, the labelled vertex
+    nearest the medoid, the tip/subnasal pair and then each side's subalare are chosen jointly,
+    maximising the FP node log-likelihoods plus Gaussian log-potentials of their Euclidean
+    distances (learned, rotation invariant, left/right pooled). The FPPCA labels still define
+    the candidate sets and the k-means split into sides.
+    """
     clf = model.classifier
     flags = []
     r = float(model.param("nose_search_radius_mm"))
     disk = voxel_subsample(feat.vertices, feat.geodesic_disk(start, r), opts["circle_spacing"])
     disk = np.union1d(disk, [start])
-    lab, dist = _fppca(feat, clf, disk)
-    tip = _closest_labelled(disk, lab, dist, NOSE_TIP)
-    if tip is None:
-        tip = start
+    fp = feat.fingerprint(disk)
+    lab = clf.label(fp)
+    ll_t = log_density(fp, model.node_mean[NOSE_TIP], model.node_cov[NOSE_TIP])
+    ll_s = log_density(fp, model.node_mean[SUBNASAL], model.node_cov[SUBNASAL])
+    if not lab[:, NOSE_TIP].any():
         flags.append("nose_tip_unlabelled")
-    sub = _closest_labelled(disk, lab, dist, SUBNASAL)
-    if sub is None:  # fall back to the nearest descriptor to the subnasal medoid in the circle
-        sub = int(disk[np.argmin(dist[:, SUBNASAL])])
+    if not lab[:, SUBNASAL].any():
         flags.append("subnasal_unlabelled")
+    tips, llt = _labelled_or_best(disk, lab, ll_t, NOSE_TIP)
+    subs, lls = _labelled_or_best(disk, lab, ll_s, SUBNASAL)
+    score = llt[:, None] + lls[None, :] + _dist_logp(model, 2, 3, feat.vertices[tips], feat.vertices[subs])
+    score[tips[:, None] == subs[None, :]] = -np.inf
+    a, b = np.unravel_index(np.argmax(score), score.shape)
+    tip, sub = int(tips[a]), int(subs[b])
     r2 = float(model.param("subnasal_search_radius_mm"))
     disk2 = voxel_subsample(feat.vertices, feat.geodesic_disk(sub, r2), opts["circle_spacing"])
-    lab2, dist2 = _fppca(feat, clf, disk2)
+    fp2 = feat.fingerprint(disk2)
+    lab2 = clf.label(fp2)
+    # Re-choose the tip around the subnasal too: a start on the upper lip can leave the true tip
+    # outside the first circle, and the circle around the subnasal always holds it.
+    tips2, llt2 = _labelled_or_best(disk2, lab2, log_density(fp2, model.node_mean[NOSE_TIP], model.node_cov[NOSE_TIP]), NOSE_TIP)
+    tips2, llt2 = np.concatenate([tips2, tips]), np.concatenate([llt2, llt])
+    sc_t = llt2 + _dist_logp(model, 2, 3, feat.vertices[tips2], feat.vertices[[sub]])[:, 0]
+    sc_t[tips2 == sub] = -np.inf
+    # Several tips at least 6 mm apart, each completed with its alae and ranked by the joint
+    # nose score (node log-likelihoods + all six pairwise distance terms); the best n_tips become
+    # hypotheses and the full-graph BP score decides between them.
+    tip_list = []
+    for k in np.argsort(-sc_t):
+        if not np.isfinite(sc_t[k]) or len(tip_list) >= 4 * int(opts["n_tips"]):
+            break
+        if all(np.linalg.norm(feat.vertices[tips2[k]] - feat.vertices[t]) > 6.0 for t, _ in tip_list):
+            tip_list.append((int(tips2[k]), float(sc_t[k])))
+    if not tip_list:
+        tip_list = [(tip, 0.0)]
+    scored = []
+    for t, sct in tip_list:
+        ids, sca = _alae(feat, model, t, sub, disk2, fp2, lab2, flags)
+        sides = feat.vertices[ids[:2]]
+        scored.append((sct + sca + float(_dist_logp(model, 0, 1, sides[:1], sides[1:])[0, 0]), ids))
+    scored.sort(key=lambda x: -x[0])
+    return [(ids, flags) for _, ids in scored[: int(opts["n_tips"])]]
+
+
+def _alae(feat, model, tip, sub, disk2, fp2, lab2, flags):
+    """The two subalare (sides unknown) around the subnasal for a given tip (paper: FPPCA labels
+    5/6, k-means into two sides, then one point per side)."""
+    ll_a = np.maximum(log_density(fp2, model.node_mean[R_SUBALARE], model.node_cov[R_SUBALARE]),
+                      log_density(fp2, model.node_mean[L_SUBALARE], model.node_cov[L_SUBALARE]))
     side = lab2[:, R_SUBALARE] | lab2[:, L_SUBALARE]
-    pts_ids = disk2[side]
-    if len(pts_ids) < 2:
-        # No labelled subalare: take the descriptors nearest either medoid (best 10%).
-        d = np.minimum(dist2[:, R_SUBALARE], dist2[:, L_SUBALARE])
-        pts_ids = disk2[np.argsort(d)[: max(4, len(d) // 10)]]
+    side[np.argsort(-ll_a)[:10]] = True
+    if not (lab2[:, R_SUBALARE] | lab2[:, L_SUBALARE]).any():
         flags.append("subalare_unlabelled")
+    pts_ids, pts_ll = disk2[side], ll_a[side]
     pts = feat.vertices[pts_ids]
     # k-means on 3-D positions: the two alae are on either side of the subnasal.
     init = _two_side_init(pts, feat.vertices[tip], feat.vertices[sub])
-    centroids, assign = kmeans2(pts, init, minit="matrix", seed=0)
+    _, assign = kmeans2(pts, init, minit="matrix", seed=0)
     if (np.bincount(assign, minlength=2) == 0).any():
         flags.append("subalare_one_sided")
-        centroids = init
-    _, side_ids = feat.tree.query(centroids)
-    return np.array([int(side_ids[0]), int(side_ids[1]), tip, sub]), flags
+        assign = (np.linalg.norm(pts - init[1], axis=1) < np.linalg.norm(pts - init[0], axis=1)).astype(int)
+    ptip, psub = feat.vertices[[tip]], feat.vertices[[sub]]
+    chosen, total = [], 0.0
+    for k in range(2):
+        m = assign == k
+        if not m.any():
+            chosen.append(int(pts_ids[0]))
+            total -= 1e6
+            continue
+        p = pts[m]
+        sc = (pts_ll[m] + _dist_logp(model, 0, 2, p, ptip)[:, 0] + _dist_logp(model, 0, 3, p, psub)[:, 0])
+        chosen.append(int(pts_ids[m][np.argmax(sc)]))
+        total += float(np.max(sc))
+    return np.array([chosen[0], chosen[1], tip, sub]), total
 
 
 def _two_side_init(pts, tip, sub):
@@ -190,9 +259,7 @@ def _bp(feat, model, cands, canon_of, opts):
     return max_product(unary, pairwise, max_iter=opts["bp_iterations"]), fps
 
 
-def _run_hypothesis(feat, model, start, opts, timer):
-    with timer("nose"):
-        nose_ids, flags = _nose_points(feat, model, start, opts)
+def _run_hypothesis(feat, model, nose_ids, flags, opts, timer):
     with timer("align"):
         al = align_graph(model.graph_points, feat.vertices[nose_ids], feat.tree)
     cap = int(model.param("max_candidates"))
@@ -203,7 +270,7 @@ def _run_hypothesis(feat, model, start, opts, timer):
                  for i in range(len(LANDMARK_NAMES))]
         feat.fingerprint(np.concatenate(cands))
     with timer("canonical"):
-        cf = feat.canonical_form(np.unique(np.concatenate(cands)), int(nose_ids[2]),
+        cf = feat.canonical_form(np.unique(np.concatenate(cands)), int(nose_ids[3]),
                                  float(model.param("mds_region_mm")), int(model.param("mds_samples")))
     cache = {}
 
@@ -214,6 +281,8 @@ def _run_hypothesis(feat, model, start, opts, timer):
         if len(missing):
             with timer("canonical"):
                 p = (cf.place(missing) - al.translation) @ al.rotation
+                # unreached vertices (another component): far away, so every edge term vetoes them
+                p = np.nan_to_num(p, nan=1e4)
             cache.update(zip(missing.tolist(), p))
         return np.array([cache[int(v)] for v in ids])
 
@@ -267,29 +336,41 @@ def predict_landmarks(mesh, model=None, **options) -> "LandmarkResult":
         raise LandmarkError(f"{name}: no umbilics found: not a face surface (too small or flat?)")
     with timer("fppca"):
         lab, dist = _fppca(feat, model.classifier, umb)
-    # Start hypotheses: umbilics labelled nose tip, nearest the medoid first; if none carries
-    # the label, the nearest umbilics overall (flagged).
+    # Start hypotheses (paper: the umbilic labelled nose tip nearest its medoid). The nose circle
+    # of radius r around either the nose tip or the subnasal holds both, so we also start from
+    # the best subnasal umbilics; the hypothesis with the best final BP score wins.
     flags = []
-    tipd = dist[:, NOSE_TIP]
-    order = np.argsort(tipd)
-    labelled = order[lab[order, NOSE_TIP]]
-    if len(labelled) == 0:
-        flags.append("no_umbilic_labelled_nose_tip")
-        labelled = order
-    starts = [int(umb[k]) for k in labelled[: max(1, int(opts["n_starts"]))]]
-    best = None
+    starts = []
+    for cls in (NOSE_TIP, SUBNASAL):
+        order = np.argsort(dist[:, cls])
+        labelled = order[lab[order, cls]]
+        if len(labelled) == 0:
+            flags.append(f"no_umbilic_labelled_{LANDMARK_NAMES[cls]}")
+            labelled = order
+        for k in labelled[: max(1, int(opts["n_starts"]))]:
+            if int(umb[k]) not in starts:
+                starts.append(int(umb[k]))
+    hyps = {}
     for s in starts:
+        with timer("nose"):
+            try:
+                for ids, fl in _nose_points(feat, model, s, opts):
+                    hyps.setdefault(tuple(int(i) for i in ids), fl)
+            except ValueError as e:  # a start on an island or a tiny region: try the next one
+                flags.append(f"start_failed:{e}")
+    best = None
+    for ids, fl in hyps.items():
         try:
-            h = _run_hypothesis(feat, model, s, opts, timer)
-        except ValueError as e:  # a start on an island or a tiny region: try the next one
-            flags.append(f"start_failed:{e}")
+            h = _run_hypothesis(feat, model, np.array(ids), fl, opts, timer)
+        except ValueError as e:
+            flags.append(f"hypothesis_failed:{e}")
             continue
         if best is None or h["bp"].score > best["bp"].score:
             best = h
     if best is None:
         raise LandmarkError(f"{name}: no usable nose region found (no face, or a hole over the nose?)")
     res = best["bp"]
-    flags += best["flags"]
+    flags = list(dict.fromkeys(flags + best["flags"]))
     positions, confidence, vids = {}, {}, {}
     s_dim = len(model.radii)
     for i, nm in enumerate(LANDMARK_NAMES):

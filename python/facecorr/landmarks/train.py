@@ -6,7 +6,7 @@ For every training scan (``split == "train"``; Tn = neutral scans only, Te = all
    descriptor);
 2. FP descriptors at those vertices (radii :data:`DEFAULT_RADII` mm) -> node samples;
 3. the canonical form (FMM geodesics + SMACOF on ``mds_samples`` farthest-point samples of the
-   ``mds_region_mm`` geodesic disk around the nose tip, the same code prediction runs) gives the
+   ``mds_region_mm`` geodesic disk around the subnasal, the same code prediction runs) gives the
    landmarks' canonical positions; these are brought into the template frame by the inverse of
    the rigid transform that aligns Pa's four nose points to the true nose points (prediction
    uses the same nose-point alignment, so both see the same pose normalisation) -> edge samples
@@ -66,13 +66,24 @@ def scan_training_sample(scan_path, landmarks_mm: np.ndarray, graph_points: np.n
     snap_d, vid = feat.tree.query(np.asarray(landmarks_mm, dtype=np.float64))
     vid = np.asarray(vid, dtype=np.int64)
     fp = feat.fingerprint(vid)
-    cf = feat.canonical_form(vid, int(vid[6]), float(p["mds_region_mm"]), int(p["mds_samples"]))
+    cf = feat.canonical_form(vid, int(vid[7]), float(p["mds_region_mm"]), int(p["mds_samples"]))
     r, t = kabsch(graph_points[4:8], landmarks_mm[4:8])
     canon = (cf.positions - t) @ r  # template frame
     rel = canon[edges[:, 1]] - canon[edges[:, 0]]
     align_err = np.linalg.norm(graph_points @ r.T + t - landmarks_mm, axis=1)
+    nose = np.asarray(landmarks_mm, dtype=np.float64)[4:8]
+    nose_d = np.linalg.norm(nose[:, None] - nose[None], axis=-1)
     return dict(fp=fp, rel=rel, align_err=align_err, snap=np.asarray(snap_d), seconds=time.perf_counter() - t0,
-                rel_stress=cf.rel_stress)
+                rel_stress=cf.rel_stress, nose_d=nose_d)
+
+
+def nose_pair_stats(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std (4, 4) of nose-point distances d (n, 4, 4) (right/left subalare, tip,
+    subnasal), pooling each right-side pair with its left-side mirror; std floored at 1 mm."""
+    d = np.asarray(d, dtype=np.float64)
+    mirror = d[:, [1, 0, 2, 3]][:, :, [1, 0, 2, 3]]
+    pooled = np.concatenate([d, mirror])
+    return pooled.mean(axis=0), np.maximum(pooled.std(axis=0), 1.0)
 
 
 def _records(db_dir, neutral_only: bool):
@@ -155,6 +166,7 @@ def train(db_dir, out_path, neutral_only: bool = False, workers: int = 2, radii=
     # spacing and the MDS fit.
     edge = [fit_gaussian(rel[:, e], ridge=1e-6, floor=1.0) for e in range(len(edges))]
     search = np.clip(2.0 * np.quantile(aerr, 0.95, axis=0) + 2.0, 8.0, 30.0)
+    nose_mean, nose_std = nose_pair_stats(np.stack([r["nose_d"] for r in ok]))
     p.update(trained_on=str(db_dir), n_scans=len(ok), n_failed=len(errors), neutral_only=bool(neutral_only),
              mean_snap_mm=float(np.mean([r["snap"].mean() for r in ok])),
              mean_rel_stress=float(np.mean([r["rel_stress"] for r in ok])))
@@ -162,7 +174,7 @@ def train(db_dir, out_path, neutral_only: bool = False, workers: int = 2, radii=
                           node_mean=np.array([m for m, _ in node]), node_cov=np.array([c for _, c in node]),
                           edges=edges, edge_mean=np.array([m for m, _ in edge]),
                           edge_cov=np.array([c for _, c in edge]), graph_points=pa, search_radius=search,
-                          params=p)
+                          nose_pair_mean=nose_mean, nose_pair_std=nose_std, params=p)
     model.save(out_path)
     model.source = str(out_path)
     return model
