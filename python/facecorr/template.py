@@ -218,6 +218,11 @@ class Template:
         return len(self.blendshapes)
 
     @property
+    def region_names(self) -> tuple:
+        """REGION_NAMES: ``regions`` holds indices into it."""
+        return REGION_NAMES
+
+    @property
     def landmarks(self) -> dict:
         """Landmark name -> template vertex id."""
         return {n: int(i) for n, i in zip(LANDMARK_NAMES, self.landmark_ids)}
