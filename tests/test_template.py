@@ -199,9 +199,11 @@ def test_cli_json_and_png(tmp_path, capsys):
     assert {k: v["count"] for k, v in out["regions"].items()} == {
         n: len(t.region_ids(n)) for n in REGION_NAMES}
     assert sum(v["count"] for v in out["regions"].values()) == t.n_vertices
-    png = tmp_path / "t.png"
-    args = parser.parse_args(["template", "--png", str(png)])
+    png = tmp_path / "sub" / "t.png"
+    args = parser.parse_args(["template", "--png", str(png), "--json", str(tmp_path / "t.json")])
     assert args.func(args) == 0
+    assert json.loads((tmp_path / "t.json").read_text()) == out
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["sub", "t.json", "t.png"]  # no temp files
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 50_000
 
 
@@ -211,8 +213,7 @@ def test_cli_bad_input(tmp_path):
 
     parser = argparse.ArgumentParser()
     add_commands(parser.add_subparsers(dest="command"))
-    for argv in (["template"], ["template", "--png", str(tmp_path / "x.jpg")],
-                 ["template", "--png", str(tmp_path / "missing" / "x.png")]):
+    for argv in (["template"], ["template", "--json", str(tmp_path / "t.json"), "--png", str(tmp_path / "x.jpg")]):
         args = parser.parse_args(argv)
         with pytest.raises(FacecorrError):
             args.func(args)

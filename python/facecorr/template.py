@@ -475,8 +475,11 @@ def build_template(model_path: str | Path = ICT_MODEL_PATH) -> dict[str, np.ndar
 
 def save_template(path: str | Path = TEMPLATE_PATH, model_path: str | Path = ICT_MODEL_PATH) -> dict:
     """Build the template and write it to ``path`` (compressed npz). Returns the arrays."""
+    from .fileio import atomic_path
+
     arrays = build_template(model_path)
-    np.savez_compressed(path, **arrays)
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, **arrays)
     return arrays
 
 
