@@ -218,3 +218,16 @@ def test_cli_bad_input(tmp_path):
         with pytest.raises(FacecorrError):
             args.func(args)
     assert not list(tmp_path.iterdir())
+
+
+def test_visible_points_depth_test():
+    from facecorr.template_commands import visible_points
+
+    # a square in the z = 0 plane facing +z; points above it are seen, below it hidden
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    pts = np.array([[0, 0, 1.0], [0, 0, -1.0], [0.2, 0.3, 0.0], [5, 5, -3.0]])
+    np.testing.assert_array_equal(visible_points(v, f, pts, np.eye(3)), [True, False, True, True])
+    # seen from behind (yaw 180 deg) it is the other way round
+    r = np.diag([-1.0, 1.0, -1.0])
+    np.testing.assert_array_equal(visible_points(v, f, pts, r), [False, True, True, True])
