@@ -39,7 +39,7 @@ from .mesh import Mesh
 
 __all__ = [
     "MESH_FORMATS",
-    "UNIT_FACTORS",
+    "UNIT_TO_MM",
     "infer_units",
     "load_mesh",
     "save_mesh",
@@ -49,7 +49,7 @@ __all__ = [
 ]
 
 #: Factor from each unit to millimetres.
-UNIT_FACTORS = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+UNIT_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 
 _TRIMESH_FORMATS = {".obj": "obj", ".ply": "ply", ".stl": "stl", ".off": "off", ".glb": "glb"}
 _WRL_FORMATS = {".wrl": "wrl", ".vrml": "wrl"}
@@ -84,7 +84,7 @@ def infer_units(vertices: np.ndarray) -> str:
 
 def _unit_factor(units: str) -> float:
     try:
-        return UNIT_FACTORS[units]
+        return UNIT_TO_MM[units]
     except (KeyError, TypeError):
         raise UnitsError(f"unknown units {units!r}; use 'mm', 'cm', 'm' (or 'auto' to load)") from None
 
@@ -295,7 +295,7 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
     inferred = units == "auto"
     if inferred:
         units = infer_units(V)
-        factor = UNIT_FACTORS[units]
+        factor = UNIT_TO_MM[units]
     meta.update(format=fmt, units_inferred=inferred)
     mesh = Mesh(V * factor, F, to_mm=factor, units=units, source=str(path), meta=meta)
     mesh.meta["n_components"] = int(len(np.unique(mesh.components[mesh.faces[:, 0]])))
