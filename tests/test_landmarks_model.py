@@ -23,7 +23,9 @@ def make_model(seed=0, s=7):
         node_cov=a @ a.transpose(0, 2, 1) + np.eye(s), edges=edges, edge_mean=rng.normal(size=(len(edges), 3)),
         edge_cov=b @ b.transpose(0, 2, 1) + np.eye(3), graph_points=rng.normal(size=(8, 3)) * 30,
         search_radius=np.full(8, 12.0), nose_pair_mean=np.full((4, 4), 20.0) - 20 * np.eye(4),
-        nose_pair_std=np.full((4, 4), 3.0), params={"nose_search_radius_mm": 25.0, "trained_on": "test"})
+        nose_pair_std=np.full((4, 4), 3.0), icp_points=rng.normal(size=(50, 3)) * 30,
+        icp_tip_normal=np.array([0.0, 0, 1]), offset_mean=np.zeros((8, 3)), offset_cov=np.tile(4 * np.eye(3), (8, 1, 1)),
+        params={"nose_search_radius_mm": 25.0, "trained_on": "test"})
 
 
 def test_round_trip(tmp_path):

@@ -62,6 +62,26 @@ class ScanFeatures:
             return np.zeros((0, len(self.radii)))
         return np.array([self._fp[i] for i in ids.tolist()])
 
+    @property
+    def normals(self) -> np.ndarray:
+        """(N, 3) unit area-weighted vertex normals (computed once)."""
+        if not hasattr(self, "_vn"):
+            from ..mesh import Mesh
+
+            self._vn = Mesh(self.vertices, self.faces).vertex_normals
+        return self._vn
+
+    def tip_normal(self, vertex: int, radius: float = 8.0) -> np.ndarray:
+        """Unit area-weighted mean normal of the faces within ``radius`` mm of a vertex."""
+        if not hasattr(self, "_fn"):
+            f = self.faces
+            a, b, c = (self.vertices[f[:, k]] for k in range(3))
+            self._fn = np.cross(b - a, c - a)  # length = 2 x area
+            self._fc = (a + b + c) / 3.0
+        near = np.linalg.norm(self._fc - self.vertices[vertex], axis=1) < radius
+        n = self._fn[near].sum(axis=0)
+        return n / max(np.linalg.norm(n), 1e-12)
+
     def geodesic_disk(self, center: int, radius: float) -> np.ndarray:
         """Sorted vertex ids within geodesic distance ``radius`` (mm) of ``center``."""
         d = np.asarray(self.solver.distances(np.array([center], dtype=np.int64), max_distance=radius))

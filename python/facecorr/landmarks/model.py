@@ -22,6 +22,10 @@ search_radius                 (L,)          BP candidate region radius around ea
 nose_pair_mean, nose_pair_std (4, 4), (4, 4) Euclidean distances between the nose points
                                             (right subalare, left subalare, tip, subnasal), mm,
                                             left/right pooled (the sides are unknown when used)
+icp_points                    (P, 3)        template upper-face points for the rigid pose ICP, mm
+icp_tip_normal                (3,)          template surface normal at the nose tip
+offset_mean, offset_cov       (L, 3), (L, 3, 3) Gaussian position prior: landmark minus Pa point
+                                            after the ICP pose, template frame, mm
 params                        () str        JSON: the scalar settings (nose search radius, MDS
                                             sample count, ...) and training provenance
 ============================  ============  =====================================================
@@ -49,7 +53,7 @@ DEFAULT_MODEL = "landmarks_model.npz"
 DEFAULT_PARAMS = {
     "nose_search_radius_mm": 25.0,   # paper's r: the geodesic circle around the nose-tip start
     "subnasal_search_radius_mm": 30.0,  # the circle around the subnasal for classes 5/6
-    "mds_samples": 80,               # farthest-point samples of the canonical form
+    "mds_samples": 50,               # farthest-point samples of the canonical form
     "mds_region_mm": 90.0,           # geodesic radius (around the subnasal) the samples come from
     "max_candidates": 60,            # per landmark and BP pass
     "node_ridge": 1e-4,              # added to the FP covariance diagonal (relative)
@@ -71,6 +75,10 @@ class LandmarkModel:
     search_radius: np.ndarray
     nose_pair_mean: np.ndarray
     nose_pair_std: np.ndarray
+    icp_points: np.ndarray
+    icp_tip_normal: np.ndarray
+    offset_mean: np.ndarray
+    offset_cov: np.ndarray
     params: dict = field(default_factory=dict)
     source: str | None = None
 
@@ -90,7 +98,8 @@ class LandmarkModel:
             node_mean=self.node_mean, node_cov=self.node_cov, edges=self.edges.astype(np.int64),
             edge_mean=self.edge_mean, edge_cov=self.edge_cov, graph_points=self.graph_points,
             search_radius=self.search_radius, nose_pair_mean=self.nose_pair_mean,
-            nose_pair_std=self.nose_pair_std, params=np.array(json.dumps(self.params, sort_keys=True)),
+            nose_pair_std=self.nose_pair_std, icp_points=self.icp_points, icp_tip_normal=self.icp_tip_normal,
+            offset_mean=self.offset_mean, offset_cov=self.offset_cov, params=np.array(json.dumps(self.params, sort_keys=True)),
         )
         validate_arrays(arrays, str(path))
         with atomic_path(path) as tmp:
@@ -102,7 +111,8 @@ _SHAPES = {
     "sigma": ("L",), "ellipse_centers": ("L", "D"), "ellipse_A": ("L", "D", "D"),
     "node_mean": ("L", "S"), "node_cov": ("L", "S", "S"), "edges": ("E", 2), "edge_mean": ("E", 3),
     "edge_cov": ("E", 3, 3), "graph_points": ("L", 3), "search_radius": ("L",),
-    "nose_pair_mean": (4, 4), "nose_pair_std": (4, 4),
+    "nose_pair_mean": (4, 4), "nose_pair_std": (4, 4), "icp_points": ("P", 3), "icp_tip_normal": (3,),
+    "offset_mean": ("L", 3), "offset_cov": ("L", 3, 3),
 }
 
 
@@ -138,7 +148,9 @@ def validate_arrays(arrays: dict, name: str) -> None:
     off = ~np.eye(4, dtype=bool)
     if (np.asarray(arrays["nose_pair_std"])[off] <= 0).any():
         raise ModelError(f"{name}: 'nose_pair_std' must be positive off the diagonal (mm)")
-    for key in ("node_cov", "edge_cov", "ellipse_A"):
+    if len(np.asarray(arrays["icp_points"])) < 10:
+        raise ModelError(f"{name}: 'icp_points' needs at least 10 points")
+    for key in ("node_cov", "edge_cov", "ellipse_A", "offset_cov"):
         for k, m in enumerate(np.asarray(arrays[key])):
             if not np.allclose(m, m.T, rtol=1e-6, atol=1e-12) or np.linalg.eigvalsh(0.5 * (m + m.T)).min() <= 0:
                 raise ModelError(f"{name}: '{key}'[{k}] is not symmetric positive definite")
@@ -180,4 +192,6 @@ def load_model(path=None) -> LandmarkModel:
         edge_mean=arrays["edge_mean"].astype(float), edge_cov=arrays["edge_cov"].astype(float),
         graph_points=arrays["graph_points"].astype(float), search_radius=arrays["search_radius"].astype(float),
         nose_pair_mean=arrays["nose_pair_mean"].astype(float), nose_pair_std=arrays["nose_pair_std"].astype(float),
+        icp_points=arrays["icp_points"].astype(float), icp_tip_normal=arrays["icp_tip_normal"].astype(float),
+        offset_mean=arrays["offset_mean"].astype(float), offset_cov=arrays["offset_cov"].astype(float),
         params=json.loads(str(arrays["params"])), source=name)

@@ -46,7 +46,7 @@ from scipy.stats import chi2
 
 from ..errors import LandmarkError
 from ..names import LANDMARK_NAMES
-from .alignment import align_graph
+from .alignment import align_graph, kabsch
 from .bp import max_product
 from .features import ScanFeatures, voxel_subsample
 from .gaussian import log_density, mahalanobis2
@@ -60,6 +60,8 @@ PREDICT_DEFAULTS = {
     "refine_spacing": 1.0,        # mm, candidates of the fine BP pass
     "n_starts": 3,                # nose-tip (and subnasal) start umbilics
     "n_tips": 2,                  # nose-tip choices per start
+    "sweep_tips": 2,              # distinct tips with a rotation sweep about their normal
+    "sweep_angles": 12,           # rotations per sweep
     "confidence_radius": 4.0,     # mm
     "low_confidence": 0.3,        # flag below this
     "bp_iterations": 60,
@@ -247,10 +249,16 @@ def _ball(feat: ScanFeatures, center: np.ndarray, radius: float, spacing: float,
     return ball
 
 
-def _bp(feat, model, cands, canon_of, opts):
-    """Node + edge log-potentials over candidate sets, then loopy max-product."""
+def _bp(feat, model, cands, canon_of, pose, opts):
+    """Node (FP + position prior) and edge (canonical relative position) log-potentials over the
+    candidate sets, then loopy max-product."""
+    r, t = pose
     fps = [feat.fingerprint(c) for c in cands]
-    unary = [log_density(f, model.node_mean[i], model.node_cov[i]) for i, f in enumerate(fps)]
+    unary = []
+    for i, (c, f) in enumerate(zip(cands, fps)):
+        off = (feat.vertices[c] - t) @ r - model.graph_points[i]
+        unary.append(log_density(f, model.node_mean[i], model.node_cov[i])
+                     + log_density(off, model.offset_mean[i], model.offset_cov[i]))
     pos = [canon_of(c) for c in cands]
     pairwise = {}
     for e, (i, j) in enumerate(model.edges):
@@ -259,43 +267,63 @@ def _bp(feat, model, cands, canon_of, opts):
     return max_product(unary, pairwise, max_iter=opts["bp_iterations"]), fps
 
 
-def _run_hypothesis(feat, model, nose_ids, flags, opts, timer):
-    with timer("align"):
-        al = align_graph(model.graph_points, feat.vertices[nose_ids], feat.tree)
+def _pose(feat, model, hyps, opts):
+    """Rigid pose template -> scan: trimmed ICP from the nose-point alignments (both 5/6
+    labellings, paper §3.6) and a sweep about the nose-tip normal at each distinct tip."""
+    from .pose import fit_pose, normal_sweep_starts
+
+    starts, tips, d_f = [], [], {}
+    for ids in hyps:
+        al = align_graph(model.graph_points, feat.vertices[np.array(ids)], feat.tree)
+        d_f[ids] = al.d_f
+        for order in ([0, 1, 2, 3], [1, 0, 2, 3]):
+            r, t = kabsch(model.graph_points[4:8], feat.vertices[np.array(ids)[order]])
+            starts.append((r, t))
+        if all(np.linalg.norm(feat.vertices[ids[2]] - feat.vertices[k]) > 3.0 for k in tips):
+            tips.append(ids[2])
+    tpl_tip = model.graph_points[NOSE_TIP]
+    for tip in tips[: int(opts["sweep_tips"])]:
+        n = feat.tip_normal(tip)
+        starts += normal_sweep_starts(tpl_tip, model.icp_tip_normal, feat.vertices[tip], n, int(opts["sweep_angles"]))
+    r, t, rms, _ = fit_pose(model.icp_points, feat.tree, starts, normals=feat.normals)
+    return r, t, rms, d_f
+
+
+def _localise(feat, model, pose, opts, timer):
+    """Candidates around the posed Pa points, canonical form, coarse BP, fine BP."""
+    r, t = pose
     cap = int(model.param("max_candidates"))
+    expected = (model.graph_points + model.offset_mean) @ r.T + t
     with timer("candidates"):
         # Coarse search regions: the spacing grows with the radius so ~cap candidates cover it.
         spacing = np.maximum(opts["candidate_spacing"], model.search_radius * np.sqrt(np.pi / cap))
-        cands = [_ball(feat, al.points[i], model.search_radius[i], spacing[i], cap)
+        cands = [_ball(feat, expected[i], model.search_radius[i], spacing[i], cap)
                  for i in range(len(LANDMARK_NAMES))]
         feat.fingerprint(np.concatenate(cands))
     with timer("canonical"):
-        cf = feat.canonical_form(np.unique(np.concatenate(cands)), int(nose_ids[3]),
+        _, sub = feat.tree.query(expected[SUBNASAL][None])
+        cf = feat.canonical_form(np.unique(np.concatenate(cands)), int(np.asarray(sub).ravel()[0]),
                                  float(model.param("mds_region_mm")), int(model.param("mds_samples")))
     cache = {}
 
     def canon_of(ids):
-        # scan frame -> template frame (inverse of the Pa alignment), so relative positions are
+        # scan frame -> template frame (inverse of the pose), so relative positions are
         # comparable with training whatever the scan's pose.
         missing = np.array([v for v in np.unique(ids).tolist() if v not in cache], dtype=np.int64)
         if len(missing):
-            with timer("canonical"):
-                p = (cf.place(missing) - al.translation) @ al.rotation
-                # unreached vertices (another component): far away, so every edge term vetoes them
-                p = np.nan_to_num(p, nan=1e4)
-            cache.update(zip(missing.tolist(), p))
+            p = (cf.place(missing) - t) @ r
+            # unreached vertices (another component): far away, so every edge term vetoes them
+            cache.update(zip(missing.tolist(), np.nan_to_num(p, nan=1e4)))
         return np.array([cache[int(v)] for v in ids])
 
     with timer("bp"):
-        res, fps = _bp(feat, model, cands, canon_of, opts)
-    # Fine pass: around each coarse winner, a dense candidate set.
+        res, fps = _bp(feat, model, cands, canon_of, pose, opts)
     with timer("refine"):
         fine = [_ball(feat, feat.vertices[c[res.labels[i]]], 1.5 * spacing[i], opts["refine_spacing"], cap)
                 for i, c in enumerate(cands)]
         fine = [np.union1d(f, [c[res.labels[i]]]) for i, (f, c) in enumerate(zip(fine, cands))]
-        res, fps = _bp(feat, model, fine, canon_of, opts)
-    return dict(nose_ids=nose_ids, flags=flags, alignment=al, cands=fine, fps=fps, bp=res,
-                rel_stress=cf.rel_stress)
+        res, fps = _bp(feat, model, fine, canon_of, pose, opts)
+    return dict(cands=fine, fps=fps, bp=res, rel_stress=cf.rel_stress, expected=expected)
 
 
 def predict_landmarks(mesh, model=None, **options) -> "LandmarkResult":
@@ -338,7 +366,7 @@ def predict_landmarks(mesh, model=None, **options) -> "LandmarkResult":
         lab, dist = _fppca(feat, model.classifier, umb)
     # Start hypotheses (paper: the umbilic labelled nose tip nearest its medoid). The nose circle
     # of radius r around either the nose tip or the subnasal holds both, so we also start from
-    # the best subnasal umbilics; the hypothesis with the best final BP score wins.
+    # the best subnasal umbilics; every resulting nose hypothesis seeds the pose search.
     flags = []
     starts = []
     for cls in (NOSE_TIP, SUBNASAL):
@@ -351,26 +379,28 @@ def predict_landmarks(mesh, model=None, **options) -> "LandmarkResult":
             if int(umb[k]) not in starts:
                 starts.append(int(umb[k]))
     hyps = {}
-    for s in starts:
-        with timer("nose"):
+    with timer("nose"):
+        for s in starts:
             try:
                 for ids, fl in _nose_points(feat, model, s, opts):
                     hyps.setdefault(tuple(int(i) for i in ids), fl)
             except ValueError as e:  # a start on an island or a tiny region: try the next one
                 flags.append(f"start_failed:{e}")
-    best = None
-    for ids, fl in hyps.items():
-        try:
-            h = _run_hypothesis(feat, model, np.array(ids), fl, opts, timer)
-        except ValueError as e:
-            flags.append(f"hypothesis_failed:{e}")
-            continue
-        if best is None or h["bp"].score > best["bp"].score:
-            best = h
-    if best is None:
+    if not hyps:
         raise LandmarkError(f"{name}: no usable nose region found (no face, or a hole over the nose?)")
+    with timer("pose"):
+        r, t, rms, d_f = _pose(feat, model, list(hyps), opts)
+    for fl in hyps.values():
+        flags += fl
+    try:
+        best = _localise(feat, model, (r, t), opts, timer)
+    except ValueError as e:
+        raise LandmarkError(f"{name}: landmark search failed ({e})") from None
+    ref_rms = float(model.param("mean_icp_rms") or 1.0)
+    if rms > 3.0 * max(ref_rms, 0.5):
+        flags.append(f"poor_face_fit:icp_rms={rms:.1f}mm (training {ref_rms:.1f}mm)")
     res = best["bp"]
-    flags = list(dict.fromkeys(flags + best["flags"]))
+    flags = list(dict.fromkeys(flags))
     positions, confidence, vids = {}, {}, {}
     s_dim = len(model.radii)
     for i, nm in enumerate(LANDMARK_NAMES):
@@ -386,19 +416,18 @@ def predict_landmarks(mesh, model=None, **options) -> "LandmarkResult":
         confidence[nm] = float(np.clip(p[near].sum() * fit, 0.0, 1.0))
         if confidence[nm] < opts["low_confidence"]:
             flags.append(f"low_confidence:{nm}")
-    # Geometric plausibility: the aligned Pa must lie on the surface (a half face or a hole over
-    # the nose leaves Pa's far side in the air).
-    al = best["alignment"]
-    d_surf, _ = feat.tree.query(al.points)
-    if d_surf.max() > 10.0:
-        off = [LANDMARK_NAMES[k] for k in np.flatnonzero(d_surf > 10.0)]
+    # Geometric plausibility: the posed Pa must lie on the surface (a half face or a hole over
+    # the nose leaves part of it in the air).
+    d_surf, _ = feat.tree.query(best["expected"])
+    if np.max(d_surf) > 8.0:
+        off = [LANDMARK_NAMES[k] for k in np.flatnonzero(np.asarray(d_surf) > 8.0)]
         flags.append(f"graph_off_surface:{','.join(off)} (half face or missing region?)")
     pred = np.array([positions[n] for n in LANDMARK_NAMES])
     tpl = model.graph_points
     span = np.linalg.norm(pred[0] - pred[3]) / max(np.linalg.norm(tpl[0] - tpl[3]), 1e-9)
     if not 0.6 < span < 1.5:
         flags.append(f"implausible_eye_span:{span:.2f}x template")
-    debug = dict(nose_ids=best["nose_ids"], flipped=al.flipped, d_f=al.d_f, bp_score=res.score,
+    debug = dict(nose_hypotheses=list(hyps), d_f=d_f, pose=(r, t), icp_rms=rms, bp_score=res.score,
                  bp_converged=res.converged, n_umbilics=len(umb), starts=starts,
                  n_candidates=[len(c) for c in best["cands"]], rel_stress=best["rel_stress"])
     timings = dict(timer.t)

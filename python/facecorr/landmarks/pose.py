@@ -1,0 +1,109 @@
+"""Rough face pose: rigid ICP of the template's upper face onto the scan (extends paper §3.6).
+
+The paper aligns the landmark graph Pa to four nose points and keeps, of the two 5/6 labellings,
+the transform with the smaller D_F (summed closest-point distance of Pa to the scan). On scans
+where the FP descriptor cannot separate the subnasal and the alae (our synthetic scans: nostril
+holes truncate the geodesic disks) those four points are unreliable, so we *minimise* a trimmed
+D_F over the rigid motion instead of only comparing two transforms: trimmed point-to-plane ICP
+of a few hundred points of the template's upper face (eyes, nose, forehead, cheeks: the part an
+expression moves least) onto the scan. Starts: every nose-point alignment (both labellings) plus
+a sweep of rotations about the nose-tip normal (so no pose is assumed); the start with the
+smallest trimmed residual after a few iterations is refined.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .alignment import kabsch
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A rotation (3, 3) taking unit vector a to unit vector b."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(a @ b)
+    if c < -1 + 1e-9:  # opposite: rotate by pi about any axis orthogonal to a
+        axis = np.cross(a, [1.0, 0, 0]) if abs(a[0]) < 0.9 else np.cross(a, [0, 1.0, 0])
+        axis /= np.linalg.norm(axis)
+        return 2 * np.outer(axis, axis) - np.eye(3)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1 + c)
+
+
+def axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation (3, 3) by ``angle`` (radians) about unit ``axis`` (Rodrigues)."""
+    k = axis / np.linalg.norm(axis)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+
+
+def normal_sweep_starts(tip_tpl: np.ndarray, normal_tpl: np.ndarray, tip_scan: np.ndarray,
+                        normal_scan: np.ndarray, n_angles: int = 12):
+    """Rigid starts (R, t) mapping the template nose tip and its normal onto the scan's, swept
+    over ``n_angles`` rotations about the normal."""
+    r0 = rotation_between(normal_tpl, normal_scan)
+    out = []
+    for k in range(n_angles):
+        r = axis_angle(normal_scan, 2 * np.pi * k / n_angles) @ r0
+        out.append((r, tip_scan - r @ tip_tpl))
+    return out
+
+
+def _point_to_plane_step(p: np.ndarray, q: np.ndarray, n: np.ndarray):
+    """Linearised point-to-plane update (dR, dt) minimising sum ((dR p + dt - q) . n)^2."""
+    a = np.hstack([np.cross(p, n), n])  # (k, 6): rows [p x n, n]
+    b = np.einsum("ij,ij->i", q - p, n)
+    x, *_ = np.linalg.lstsq(a, b, rcond=None)
+    w, dt = x[:3], x[3:]
+    angle = float(np.linalg.norm(w))
+    dr = axis_angle(w, angle) if angle > 1e-12 else np.eye(3)
+    return dr, dt
+
+
+def trimmed_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters: int = 20,
+                keep: float = 0.8, tol: float = 1e-5, normals: np.ndarray | None = None):
+    """Trimmed ICP of points (P, 3) onto the KD-tree's points.
+
+    Each iteration matches every transformed point to its closest scan vertex, keeps the
+    ``keep`` fraction with the smallest distances (robust to missing parts and expression) and
+    updates the pose: point-to-plane (linearised, fast convergence on smooth surfaces) when the
+    scan's unit ``normals`` (N, 3) are given, else point-to-point (Kabsch). Stops when the
+    trimmed RMS improves by less than ``tol`` (relative). Returns (R, t, trimmed RMS residual mm,
+    closest distances (P,)).
+    """
+    scan = tree.data
+    n_keep = max(6, int(keep * len(points)))
+    prev = np.inf
+    for _ in range(iters):
+        moved = points @ r.T + t
+        d, idx = tree.query(moved)
+        idx = np.asarray(idx)
+        order = np.argsort(d)[:n_keep]
+        rms = float(np.sqrt(np.mean(d[order] ** 2)))
+        if prev - rms < tol * max(rms, 1e-9):
+            break
+        prev = rms
+        if normals is None:
+            r, t = kabsch(points[order], scan[idx[order]])
+        else:
+            dr, dt = _point_to_plane_step(moved[order], scan[idx[order]], normals[idx[order]])
+            r, t = dr @ r, dr @ t + dt
+    moved = points @ r.T + t
+    d, _ = tree.query(moved)
+    d = np.asarray(d)
+    rms = float(np.sqrt(np.mean(np.sort(d)[:n_keep] ** 2)))
+    return r, t, rms, d
+
+
+def fit_pose(points: np.ndarray, tree, starts, coarse_iters: int = 8, fine_iters: int = 40, keep: float = 0.8,
+             normals: np.ndarray | None = None):
+    """Best rigid pose (R, t, rms, distances) over several starts: a few ICP iterations from
+    each, then the best start refined (see :func:`trimmed_icp`)."""
+    best = None
+    for r0, t0 in starts:
+        r, t, rms, _ = trimmed_icp(points, tree, r0, t0, iters=coarse_iters, keep=keep, normals=normals)
+        if best is None or rms < best[2]:
+            best = (r, t, rms)
+    return trimmed_icp(points, tree, best[0], best[1], iters=fine_iters, keep=keep, normals=normals)

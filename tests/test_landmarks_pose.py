@@ -1,0 +1,73 @@
+"""Rigid pose by trimmed ICP from a rotation sweep about the nose-tip normal."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from facecorr.landmarks.pose import axis_angle, fit_pose, normal_sweep_starts, rotation_between, trimmed_icp
+
+
+def _grid_normals(p, n):
+    """Unit vertex normals of an n x n height-field grid (from its triangulation)."""
+    from facecorr.mesh import Mesh
+
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    return Mesh(p, faces).vertex_normals
+
+
+def _bumpy_face(n=60):
+    """A height field with a nose-like bump and asymmetric features (no rotational symmetry)."""
+    x, y = np.meshgrid(np.linspace(-60, 60, n), np.linspace(-70, 70, n))
+    z = 25 * np.exp(-(x**2 + y**2) / 300) + 12 * np.exp(-((x + 25) ** 2 + (y - 30) ** 2) / 80) \
+        + 6 * np.exp(-((x - 22) ** 2 + (y - 30) ** 2) / 150) + 5 * np.exp(-(x**2 + (y + 40) ** 2) / 120) - 0.004 * (x**2 + 0.5 * y**2)
+    return np.column_stack([x.ravel(), y.ravel(), z.ravel()])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rotation_helpers(seed):
+    rng = np.random.default_rng(seed)
+    a, b = rng.normal(size=3), rng.normal(size=3)
+    r = rotation_between(a, b)
+    np.testing.assert_allclose(r @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-12)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(rotation_between(a, -a) @ a, -a, atol=1e-12)
+    k = axis_angle(a, 0.7)
+    np.testing.assert_allclose(k, Rotation.from_rotvec(0.7 * a / np.linalg.norm(a)).as_matrix(), atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_sweep_and_icp_recover_any_rotation(seed):
+    tpl = _bumpy_face()
+    rng = np.random.default_rng(seed)
+    rot = Rotation.random(random_state=seed).as_matrix()
+    shift = rng.normal(size=3) * 100
+    clean = _bumpy_face(90)
+    normals = _grid_normals(clean, 90) @ rot.T
+    scan = clean @ rot.T + shift + rng.normal(size=(8100, 3)) * 0.2
+    tree = cKDTree(scan)
+    tip = np.array([0.0, 0.0, 25.0])
+    # normals: the template's is +z; the scan's, as a detector would measure it, with 5 deg error
+    n_scan = axis_angle(np.cross(rot[:, 2], [1, 0, 0]), np.radians(5)) @ rot[:, 2]
+    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + shift, n_scan, 12)
+    pts = tpl[::7]
+    r, t, rms, _ = fit_pose(pts, tree, starts, normals=normals)
+    assert rms < 1.0
+    np.testing.assert_allclose(r, rot, atol=0.02)
+    np.testing.assert_allclose(t, shift, atol=2.0)
+    # point-to-point from the same starts converges far more slowly (why we use point-to-plane)
+    r2, _, _, _ = fit_pose(pts, tree, starts)
+    assert np.abs(r2 - rot).max() > np.abs(r - rot).max()
+
+
+def test_trimmed_icp_ignores_missing_part():
+    tpl = _bumpy_face()
+    scan = tpl[tpl[:, 0] < 30]  # a third of the face missing
+    tree = cKDTree(scan)
+    normals = _grid_normals(tpl, 60)[tpl[:, 0] < 30]
+    r0 = axis_angle(np.array([0, 0, 1.0]), np.radians(8))
+    r, t, rms, d = trimmed_icp(tpl[::5], tree, r0, np.array([3.0, -2, 1]), iters=60, keep=0.6, normals=normals)
+    np.testing.assert_allclose(r, np.eye(3), atol=5e-3)
+    assert rms < 0.5
