@@ -61,6 +61,11 @@ def test_one_piece_manifold_with_four_loops(t):
     assert sum(len(l) for l in t.boundary_loops.values()) == len(t.boundary) == (counts == 1).sum()
     for name, loop in t.boundary_loops.items():  # consecutive loop vertices share an edge
         assert adj[loop, np.roll(loop, -1)].min() > 0, name
+    # a clean outer crop line: no notches or spikes (turn between consecutive boundary edges)
+    p = t.vertices[t.boundary_loops["outer"]]
+    d1, d0 = np.roll(p, -1, axis=0) - p, p - np.roll(p, 1, axis=0)
+    cos_turn = (d1 * d0).sum(1) / np.linalg.norm(d1, axis=1) / np.linalg.norm(d0, axis=1)
+    assert cos_turn.min() > np.cos(np.radians(20))
     # the mouth slit is open between the lips: its loop reaches the inner lip corners (iBUG 60,
     # 64) and stays inside the outer ones (48, 54)
     mx = t.vertices[t.boundary_loops["mouth"], 0]
@@ -89,6 +94,9 @@ def test_ict_face_map_is_exact(t, ict):
 def test_landmarks_and_sides(t, ict):
     assert np.array_equal(t.ibug68[t.ibug68 >= 0], np.searchsorted(t.ict_vertex, ict["landmarks68"][t.ibug68 >= 0]))
     assert np.array_equal(t.landmark_ids, t.ibug68[list(names.LANDMARK_IBUG68)])
+    assert (t.ibug68[17:] >= 0).all()  # every evaluation point (17-59) and the inner lips
+    # every landmark and evaluation point has template around it (not on the crop line)
+    assert not np.isin(t.ibug68[17:48], t.boundary_loops["outer"]).any()
     assert list(t.landmarks) == list(names.LANDMARK_NAMES)
     x = t.vertices[:, 0]
     assert x[t.ibug68[36]] < 0 < x[t.ibug68[45]]  # subject's right at -x
