@@ -10,7 +10,7 @@ from scipy.sparse.csgraph import connected_components
 
 from facecorr import names
 from facecorr.template import (
-    ICT_MODEL_PATH, MAX_BLENDSHAPE_COSINE, MIN_BLENDSHAPE_COSINE, REGION_NAMES, TEMPLATE_PATH, build_template,
+    BOUNDARY_LOOP_NAMES, ICT_MODEL_PATH, MAX_BLENDSHAPE_COSINE, MIN_BLENDSHAPE_COSINE, REGION_NAMES, TEMPLATE_PATH, build_template,
     load_template, template_from_arrays,
 )
 
@@ -51,13 +51,17 @@ def test_sizes_and_types(t):
     assert TEMPLATE_PATH.stat().st_size < 2_000_000  # small package data
 
 
-def test_one_piece_manifold_with_four_loops(t):
+def test_one_piece_manifold_with_six_loops(t):
     adj = _adjacency(t.n_vertices, t.faces)
     assert _n_components(adj, np.arange(t.n_vertices)) == 1
     e = np.sort(np.concatenate([t.faces[:, [0, 1]], t.faces[:, [1, 2]], t.faces[:, [2, 0]]]), axis=1)
     _, counts = np.unique(e, axis=0, return_counts=True)
     assert counts.max() == 2  # edge-manifold
-    assert set(t.boundary_loops) == {"outer", "right_eye", "left_eye", "mouth"}
+    assert tuple(t.boundary_loops) == BOUNDARY_LOOP_NAMES
+    x = t.vertices[:, 0]
+    for side, sign in (("right", -1), ("left", 1)):  # loops named by the right side
+        for what in ("eye", "nostril"):
+            assert sign * x[t.boundary_loops[f"{side}_{what}"]].mean() > 3
     assert sum(len(l) for l in t.boundary_loops.values()) == len(t.boundary) == (counts == 1).sum()
     for name, loop in t.boundary_loops.items():  # consecutive loop vertices share an edge
         assert adj[loop, np.roll(loop, -1)].min() > 0, name
@@ -239,3 +243,21 @@ def test_visible_points_depth_test():
     # seen from behind (yaw 180 deg) it is the other way round
     r = np.diag([-1.0, 1.0, -1.0])
     np.testing.assert_array_equal(visible_points(v, f, pts, r), [False, True, True, True])
+
+
+def test_template_is_what_scanners_see():
+    """Every template vertex outside the eye/mouth openings' rims faces some scanner view: the
+    nostril tubes are gone (a face cut from the ICT head without them would fail this)."""
+    from facecorr.render import view_rotation
+    from facecorr.template import visible_points
+
+    t = load_template()
+    nose = (np.abs(t.vertices[:, 0]) < 20) & (np.abs(t.vertices[:, 1]) < 15)
+    ids = np.flatnonzero(nose)
+    normals = t.mesh().vertex_normals
+    seen = np.zeros(len(ids), bool)
+    for yaw in (-60, -30, 0, 30, 60):
+        for pitch in (0, -15):
+            r = view_rotation(yaw, pitch)
+            seen |= ((normals[ids] @ r.T)[:, 2] > 0.17) & visible_points(t.vertices, t.faces, t.vertices[ids], r)
+    assert seen.mean() > 0.98, ids[~seen]
