@@ -1,4 +1,4 @@
-"""Accuracy of a registration against exact ground truth (paper Sec. 5.3, Table 3, MHD).
+"""Accuracy of a registration against exact ground truth (the paper's Tables 1-3 and MHD).
 
 A *registered template* is the template mesh deformed onto a scan: (N, 3) vertices in template
 vertex order, in the scan's frame, millimetres. Ground truth comes from the synthetic database
@@ -211,7 +211,7 @@ def _nearest_distances(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
 
 
 def mhd(p, f_vertices) -> float:
-    """Modified Hausdorff distance MHD(P, F) = (1/N_P) sum_i min_j |p_i - f_j| (paper Sec. 5.3).
+    """Modified Hausdorff distance MHD(P, F) = (1/N_P) sum_i min_j |p_i - f_j| (the paper's MHD).
 
     Parameters
     ----------
