@@ -5,9 +5,9 @@
 //! triangle; the disk's area is exact for that piecewise-linear field (the region of a triangle
 //! where a linear function is `<= r` is a triangle or a triangle minus a triangle, see
 //! [`clipped_fraction`]). Each centre is one FMM propagation truncated just beyond the largest
-//! radius: it runs until the next vertex is farther than `max(radii) + longest edge`, which
-//! accepts every vertex sharing a triangle with a vertex inside the largest disk, so every
-//! triangle that meets a disk has final values at its three corners. Centres run in parallel,
+//! radius ([`GeodesicSolver::propagate_band`]): it also accepts every vertex sharing an edge
+//! with a vertex inside the largest disk, so every triangle that meets a disk has final values
+//! at its three corners. Centres run in parallel,
 //! each on a reusable workspace (sparse resets, no O(N) allocation per centre).
 
 use rayon::prelude::*;
@@ -31,32 +31,46 @@ pub fn clipped_fraction(d0: f64, d1: f64, d2: f64, r: f64) -> f64 {
     }
 }
 
-/// Disk areas for one centre after `ws` holds a propagation covering `max(radii) + max_edge`.
-/// `out` (len = radii.len()) receives the areas.
-fn disk_areas(solver: &GeodesicSolver, ws: &Workspace, radii: &[f64], rmax: f64, out: &mut [f64]) {
+/// Disk areas for one centre after `ws` holds a band propagation covering `rmax`
+/// (`radii_sorted` ascending; `out[k]` receives the area for `radii_sorted[k]`).
+///
+/// Every face meeting the largest disk has its three corners accepted (band property), so it is
+/// visited exactly once, from its lowest-index corner.
+fn disk_areas(solver: &GeodesicSolver, ws: &Workspace, radii_sorted: &[f64], rmax: f64, out: &mut [f64]) {
     out.fill(0.0);
     let faces = solver.faces();
     let areas = solver.face_areas();
     for &v in &ws.accepted {
-        let dv = ws.dist[v as usize];
-        if dv >= rmax {
-            continue;
-        }
-        for &fi in solver.vertex_faces(v as usize) {
-            let f = faces[fi as usize];
-            let d = [ws.dist[f[0] as usize], ws.dist[f[1] as usize], ws.dist[f[2] as usize]];
-            // count each face once: at its corner with the smallest (distance, index)
-            let owner = (0..3)
-                .min_by(|&a, &b| d[a].total_cmp(&d[b]).then(f[a].cmp(&f[b])))
-                .unwrap();
-            if f[owner] != v {
+        for fi in solver.owned_faces(v as usize) {
+            let f = faces[fi];
+            let (a, b, c) = (f[0] as usize, f[1] as usize, f[2] as usize);
+            if !(ws.is_accepted(a) && ws.is_accepted(b) && ws.is_accepted(c)) {
                 continue;
             }
-            let mut s = d;
-            s.sort_by(|a, b| a.total_cmp(b));
-            let a = areas[fi as usize];
-            for (o, &r) in out.iter_mut().zip(radii) {
-                *o += a * clipped_fraction(s[0], s[1], s[2], r);
+            let mut d = [ws.dist(a), ws.dist(b), ws.dist(c)];
+            if d[0].min(d[1]).min(d[2]) >= rmax {
+                continue;
+            }
+            if d[0] > d[1] {
+                d.swap(0, 1);
+            }
+            if d[1] > d[2] {
+                d.swap(1, 2);
+            }
+            if d[0] > d[1] {
+                d.swap(0, 1);
+            }
+            let (d0, d1, d2) = (d[0], d[1], d[2]);
+            let area = areas[fi];
+            for (o, &r) in out.iter_mut().zip(radii_sorted) {
+                if r <= d0 {
+                    continue;
+                }
+                if r >= d2 {
+                    *o += area;
+                } else {
+                    *o += area * clipped_fraction(d0, d1, d2, r);
+                }
             }
         }
     }
@@ -70,14 +84,19 @@ pub fn fingerprint(solver: &GeodesicSolver, centers: &[u32], radii: &[f64]) -> V
         return out;
     }
     let rmax = radii.iter().cloned().fold(0.0, f64::max);
-    let stop = rmax + solver.max_edge() * (1.0 + 1e-9);
-    out.par_chunks_mut(nr).zip(centers.par_iter()).for_each(|(row, &c)| {
+    let mut order: Vec<usize> = (0..nr).collect();
+    order.sort_by(|&a, &b| radii[a].total_cmp(&radii[b]));
+    let sorted: Vec<f64> = order.iter().map(|&k| radii[k]).collect();
+    out.par_chunks_mut(nr).zip(centers.par_iter()).with_min_len(4).for_each(|(row, &c)| {
+        let mut areas = [0.0f64; 16];
+        let mut big = Vec::new();
+        let acc: &mut [f64] = if nr <= 16 { &mut areas[..nr] } else { big.resize(nr, 0.0); &mut big };
         solver.with_workspace(|ws| {
-            solver.propagate(ws, &[c], stop, Method::Fmm);
-            disk_areas(solver, ws, radii, rmax, row);
+            solver.propagate_band(ws, &[solver.internal(c)], rmax, Method::Fmm);
+            disk_areas(solver, ws, &sorted, rmax, acc);
         });
-        for (o, &r) in row.iter_mut().zip(radii) {
-            *o /= std::f64::consts::PI * r * r;
+        for (k, &o) in order.iter().enumerate() {
+            row[o] = acc[k] / (std::f64::consts::PI * sorted[k] * sorted[k]);
         }
     });
     out

@@ -31,24 +31,27 @@ use std::sync::Mutex;
 
 use rayon::prelude::*;
 
+/// Angles with a cosine below this (about 95 degrees) are split by unfolding. Angles just
+/// above 90 degrees (common in quad-derived meshes) barely affect the updates and splitting
+/// them only costs stencils.
+pub const OBTUSE_SPLIT_COS: f64 = -0.087;
+
 /// Faces unfolded at most when looking for the vertex that splits an obtuse angle.
 pub const MAX_UNFOLD: usize = 16;
 
 /// One FMM update: when `trigger` (the vertex whose list holds the stencil) is accepted, update
 /// `target` from the edge `trigger -> target` and, if `other` is accepted too, from the triangle.
+/// Geometry in the triangle's 2-D frame: target at the origin, trigger at `(len, 0)`, other at
+/// `(bx, by)` with `by > 0` (`by = 0` marks a degenerate triangle: edge update only). 32 bytes,
+/// so a vertex's stencils stay within a few cache lines.
 #[derive(Clone, Copy, Debug)]
 struct Stencil {
     target: u32,
     other: u32,
     /// |trigger - target| (for virtual stencils: the unfolded straight distance)
     len: f64,
-    /// the other vertex in the 2-D frame with the target at the origin and the trigger at (len, 0)
     bx: f64,
     by: f64,
-    /// inverse Gram matrix of [trigger - target, other - target]; q11 = NaN for degenerate
-    q11: f64,
-    q12: f64,
-    q22: f64,
 }
 
 /// Propagation method.
@@ -79,13 +82,20 @@ const FAR: u8 = 0;
 const TRIAL: u8 = 1;
 const DONE: u8 = 2;
 
+/// Per-vertex state of a propagation (16 bytes: one cache access per vertex).
+#[derive(Clone, Copy)]
+struct Node {
+    dist: f64,
+    /// index (into the sources) of the source the value comes from
+    label: u32,
+    state: u8,
+}
+
+const UNTOUCHED: Node = Node { dist: f64::INFINITY, label: 0, state: FAR };
+
 /// Per-query scratch: distances and states for all vertices, reset sparsely after each query.
 pub struct Workspace {
-    /// Tentative / final distance per vertex (`inf` when untouched).
-    pub dist: Vec<f64>,
-    /// Index (into the sources) of the source each vertex's value comes from.
-    label: Vec<u32>,
-    state: Vec<u8>,
+    nodes: Vec<Node>,
     /// Vertices touched by the last propagation.
     pub touched: Vec<u32>,
     /// Vertices accepted (final) by the last propagation, in acceptance order.
@@ -96,45 +106,43 @@ pub struct Workspace {
 impl Workspace {
     /// A workspace for a mesh of `n` vertices.
     pub fn new(n: usize) -> Self {
-        Self {
-            dist: vec![f64::INFINITY; n],
-            label: vec![0; n],
-            state: vec![FAR; n],
-            touched: Vec::new(),
-            accepted: Vec::new(),
-            heap: BinaryHeap::new(),
-        }
+        Self { nodes: vec![UNTOUCHED; n], touched: Vec::new(), accepted: Vec::new(), heap: BinaryHeap::new() }
     }
 
     fn reset(&mut self) {
         for &v in &self.touched {
-            self.dist[v as usize] = f64::INFINITY;
-            self.state[v as usize] = FAR;
+            self.nodes[v as usize] = UNTOUCHED;
         }
         self.touched.clear();
         self.accepted.clear();
         self.heap.clear();
     }
 
+    /// Current distance of vertex `v` (final if accepted; `inf` when untouched).
+    #[inline]
+    pub fn dist(&self, v: usize) -> f64 {
+        self.nodes[v].dist
+    }
+
     /// True when vertex `v` was accepted by the last propagation (its distance is final).
     #[inline]
     pub fn is_accepted(&self, v: usize) -> bool {
-        self.state[v] == DONE
+        self.nodes[v].state == DONE
     }
 
     #[inline]
     fn relax(&mut self, v: u32, d: f64, label: u32) {
-        let s = self.state[v as usize];
-        if s == DONE {
+        let node = &mut self.nodes[v as usize];
+        if node.state == DONE {
             return;
         }
-        if s == FAR {
-            self.state[v as usize] = TRIAL;
+        if node.state == FAR {
+            node.state = TRIAL;
             self.touched.push(v);
         }
-        if d < self.dist[v as usize] {
-            self.dist[v as usize] = d;
-            self.label[v as usize] = label;
+        if d < node.dist {
+            node.dist = d;
+            node.label = label;
             self.heap.push(HeapItem(d, v));
         }
     }
@@ -152,8 +160,12 @@ pub struct GeodesicSolver {
     st: Vec<Stencil>,
     vf_off: Vec<u32>,
     vf: Vec<u32>,
+    owned_off: Vec<u32>,
     max_edge: f64,
+    vertex_max_edge: Vec<f64>,
     n_split: usize,
+    old_of_new: Vec<u32>,
+    new_of_old: Vec<u32>,
     pool: Mutex<Vec<Workspace>>,
 }
 
@@ -188,16 +200,13 @@ fn csr<T: Copy>(n: usize, pairs: &[(u32, T)]) -> (Vec<u32>, Vec<T>) {
     (off, vals.into_iter().map(|x| x.unwrap()).collect())
 }
 
-/// Stencil for target C from 2-D/3-D edge vectors e1 = A - C (trigger A), e2 = B - C.
+/// Stencil for target C from the Gram matrix of e1 = A - C (trigger A) and e2 = B - C.
 fn make_stencil(target: u32, other: u32, g11: f64, g22: f64, g12: f64) -> Stencil {
-    let det = g11 * g22 - g12 * g12;
     let len = g11.sqrt();
-    if !(det > 1e-12 * g11 * g22) {
-        return Stencil { target, other, len, bx: 0.0, by: 0.0, q11: f64::NAN, q12: 0.0, q22: 0.0 };
-    }
     let bx = g12 / len;
-    let by = (g22 - bx * bx).max(0.0).sqrt();
-    Stencil { target, other, len, bx, by, q11: g22 / det, q12: -g12 / det, q22: g11 / det }
+    let by2 = g22 - bx * bx;
+    let by = if by2 > 1e-12 * g22 && len > 0.0 { by2.sqrt() } else { 0.0 };
+    Stencil { target, other, len, bx, by }
 }
 
 /// Point-source update of the target of `s` (Novotni & Klein): unfold the virtual source `S`
@@ -207,26 +216,25 @@ fn make_stencil(target: u32, other: u32, g11: f64, g22: f64, g12: f64) -> Stenci
 /// triangle, or the result would not be causal.
 #[inline]
 fn source_update(s: &Stencil, ta: f64, tb: f64) -> f64 {
-    if s.q11.is_nan() {
+    let (ax, bx, by) = (s.len, s.bx, s.by);
+    if by <= 0.0 {
         return f64::INFINITY;
     }
-    let (ax, bx, by) = (s.len, s.bx, s.by);
+    // S = A + alpha e + beta perp(e), e = B - A, perp(e) = (-ey, ex) points to the target's
+    // side negated below; |S - A| = ta, |S - B| = tb
     let (ex, ey) = (bx - ax, by);
     let l2 = ex * ex + ey * ey;
-    let l = l2.sqrt();
-    let along = (ta * ta - tb * tb + l2) / (2.0 * l);
-    let h2 = ta * ta - along * along;
-    if h2 < 0.0 {
+    let inv_l2 = 1.0 / l2;
+    let alpha = 0.5 * (ta * ta - tb * tb + l2) * inv_l2;
+    let beta2 = ta * ta * inv_l2 - alpha * alpha;
+    if beta2 < 0.0 {
         return f64::INFINITY;
     }
-    let h = h2.sqrt();
-    let (ux, uy) = (ex / l, ey / l);
-    let (nx, ny) = (-uy, ux);
-    // the target (origin) is on the side sign(n . (0 - A)) of line AB; S goes to the other side
-    let side = -(nx * ax);
-    let sg = if side > 0.0 { -1.0 } else { 1.0 };
-    let sx = ax + along * ux + sg * h * nx;
-    let sy = along * uy + sg * h * ny;
+    // perp(e) = (-ey, ex); the origin lies on the side of sign(perp(e) . (0 - A)) = sign(ey * ax) > 0,
+    // so the virtual source goes the other way: S = A + alpha e - beta perp(e)
+    let beta = beta2.sqrt();
+    let sx = ax + alpha * ex + beta * ey;
+    let sy = alpha * ey - beta * ex;
     // S inside the angle at the target: between directions (ax, 0) and (bx, by), by > 0
     let tol = 1e-12 * (sx.abs() + sy.abs());
     if sy < -tol || sx * by - sy * bx < -tol {
@@ -244,10 +252,13 @@ fn source_update(s: &Stencil, ta: f64, tb: f64) -> f64 {
 /// Returns `inf` when the wave does not come from inside the triangle or is not causal.
 #[inline]
 fn triangle_update(s: &Stencil, ta: f64, tb: f64) -> f64 {
-    let (q11, q12, q22) = (s.q11, s.q12, s.q22);
-    if q11.is_nan() {
+    let (ax, bx, by) = (s.len, s.bx, s.by);
+    if by <= 0.0 {
         return f64::INFINITY;
     }
+    // inverse Gram matrix of (ax, 0), (bx, by): det = (ax by)^2
+    let inv_det = 1.0 / (ax * ax * by * by);
+    let (q11, q12, q22) = ((bx * bx + by * by) * inv_det, -ax * bx * inv_det, ax * ax * inv_det);
     let sq = q11 + 2.0 * q12 + q22;
     let m = (q11 + q12) * ta + (q12 + q22) * tb;
     let q = q11 * ta * ta + 2.0 * q12 * ta * tb + q22 * tb * tb;
@@ -348,6 +359,37 @@ fn find_split_vertex(
     None
 }
 
+/// Vertex order along a Morton curve of a 2^10 grid over the bounding box (old index per new).
+fn morton_order(verts: &[[f64; 3]]) -> Vec<u32> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in verts {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let ext = (0..3).map(|k| hi[k] - lo[k]).fold(0.0, f64::max).max(1e-300);
+    let spread = |x: u64| {
+        // interleave the low 10 bits with two zero bits each
+        let mut r = 0u64;
+        for b in 0..10 {
+            r |= ((x >> b) & 1) << (3 * b);
+        }
+        r
+    };
+    let mut keyed: Vec<(u64, u32)> = verts
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let q = |k: usize| (((p[k] - lo[k]) / ext * 1023.0) as u64).min(1023);
+            (spread(q(0)) | (spread(q(1)) << 1) | (spread(q(2)) << 2), i as u32)
+        })
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|x| x.1).collect()
+}
+
 impl GeodesicSolver {
     /// Precompute the solver for vertices `verts` (N) and triangles `faces` (M, indices < N).
     /// Faces with repeated indices are ignored; zero-area faces only contribute their edges.
@@ -361,11 +403,21 @@ impl GeodesicSolver {
                 return Err(format!("face {i} has a vertex index out of range [0, {n})"));
             }
         }
-        let faces: Vec<[u32; 3]> = faces
+        // Internal vertex order: along a Morton (Z-order) curve, so that a propagation touches
+        // nearby memory (per-vertex state and stencils); faces sorted by their first vertex.
+        let old_of_new = morton_order(verts);
+        let mut new_of_old = vec![0u32; n];
+        for (i, &o) in old_of_new.iter().enumerate() {
+            new_of_old[o as usize] = i as u32;
+        }
+        let verts: Vec<[f64; 3]> = old_of_new.iter().map(|&o| verts[o as usize]).collect();
+        let verts = &verts[..];
+        let mut faces: Vec<[u32; 3]> = faces
             .iter()
-            .copied()
+            .map(|f| [new_of_old[f[0] as usize], new_of_old[f[1] as usize], new_of_old[f[2] as usize]])
             .filter(|f| f[0] != f[1] && f[1] != f[2] && f[0] != f[2])
             .collect();
+        faces.sort_by_key(|f| *f.iter().min().unwrap());
         let face_area: Vec<f64> = faces
             .iter()
             .map(|f| {
@@ -404,6 +456,12 @@ impl GeodesicSolver {
         let (nbr_off, nl) = csr(n, &pairs);
         let nbr: Vec<u32> = nl.iter().map(|x| x.0).collect();
         let nbr_len: Vec<f64> = nl.iter().map(|x| x.1).collect();
+        let vertex_max_edge: Vec<f64> = (0..n)
+            .map(|v| {
+                let s = &nbr_len[nbr_off[v] as usize..nbr_off[v + 1] as usize];
+                s.iter().cloned().fold(0.0, f64::max)
+            })
+            .collect();
 
         // stencils, keyed by trigger vertex
         let per_face: Vec<Vec<(u32, Stencil)>> = faces
@@ -421,7 +479,7 @@ impl GeodesicSolver {
                     let (gaa, gbb, gab) = (dot(&ea, &ea), dot(&eb, &eb), dot(&ea, &eb));
                     out.push((a, make_stencil(c, b, gaa, gbb, gab)));
                     out.push((b, make_stencil(c, a, gbb, gaa, gab)));
-                    if gab < 0.0 && face_area[fi] > 0.0 {
+                    if gab < OBTUSE_SPLIT_COS * (gaa * gbb).sqrt() && face_area[fi] > 0.0 {
                         if let Some((d, d2, b2)) = find_split_vertex(verts, &faces, &edge_faces, fi, ci) {
                             let la = gaa.sqrt();
                             let dd = d2[0] * d2[0] + d2[1] * d2[1];
@@ -441,7 +499,11 @@ impl GeodesicSolver {
             .collect();
         let n_split = per_face.iter().map(|v| (v.len() - 6) / 4).sum();
         let flat: Vec<(u32, Stencil)> = per_face.into_iter().flatten().collect();
-        let (st_off, st) = csr(n, &flat);
+        let (st_off, mut st) = csr(n, &flat);
+        // group each trigger's stencils by target: one relaxation per (trigger, target)
+        for v in 0..n {
+            st[st_off[v] as usize..st_off[v + 1] as usize].sort_by_key(|x| x.target);
+        }
 
         let vfp: Vec<(u32, u32)> = faces
             .iter()
@@ -449,6 +511,14 @@ impl GeodesicSolver {
             .flat_map(|(fi, f)| f.iter().map(move |&v| (v, fi as u32)))
             .collect();
         let (vf_off, vf) = csr(n, &vfp);
+        // faces are sorted by their lowest vertex: owned_off[v]..owned_off[v+1] are v's
+        let mut owned_off = vec![0u32; n + 1];
+        for f in &faces {
+            owned_off[*f.iter().min().unwrap() as usize + 1] += 1;
+        }
+        for i in 0..n {
+            owned_off[i + 1] += owned_off[i];
+        }
 
         Ok(Self {
             n,
@@ -461,8 +531,12 @@ impl GeodesicSolver {
             st,
             vf_off,
             vf,
+            owned_off,
             max_edge,
+            vertex_max_edge,
             n_split,
+            old_of_new,
+            new_of_old,
             pool: Mutex::new(Vec::new()),
         })
     }
@@ -471,7 +545,18 @@ impl GeodesicSolver {
     pub fn n_vertices(&self) -> usize {
         self.n
     }
-    /// The (non-degenerate-index) faces used.
+    /// Internal index of (caller's) vertex `v`. Everything below the public query methods
+    /// (`propagate*`, `faces`, `vertex_faces`, workspace contents) uses internal indices.
+    #[inline]
+    pub fn internal(&self, v: u32) -> u32 {
+        self.new_of_old[v as usize]
+    }
+    /// Caller's index of internal vertex `v`.
+    #[inline]
+    pub fn external(&self, v: u32) -> u32 {
+        self.old_of_new[v as usize]
+    }
+    /// The (non-degenerate-index) faces used, in internal indices.
     pub fn faces(&self) -> &[[u32; 3]] {
         &self.faces
     }
@@ -482,6 +567,10 @@ impl GeodesicSolver {
     /// Faces incident to vertex `v` (indices into `faces()`).
     pub fn vertex_faces(&self, v: usize) -> &[u32] {
         &self.vf[self.vf_off[v] as usize..self.vf_off[v + 1] as usize]
+    }
+    /// Faces whose lowest (internal) vertex index is `v`, as a range into `faces()`.
+    pub fn owned_faces(&self, v: usize) -> std::ops::Range<usize> {
+        self.owned_off[v] as usize..self.owned_off[v + 1] as usize
     }
     /// Longest edge length.
     pub fn max_edge(&self) -> f64 {
@@ -506,58 +595,101 @@ impl GeodesicSolver {
     /// until the next one would exceed `stop`. Afterwards `ws.is_accepted(v)` marks final values
     /// (exactly the vertices with distance <= stop); other touched vertices hold upper bounds.
     pub fn propagate(&self, ws: &mut Workspace, sources: &[u32], stop: f64, method: Method) {
+        self.run(ws, sources, method, |_, _| stop);
+    }
+
+    /// The propagation loop; `stop(v, d)` is called after accepting `v` at distance `d` and
+    /// returns the current stopping distance (the loop ends before accepting a vertex beyond it).
+    #[inline]
+    fn run(
+        &self,
+        ws: &mut Workspace,
+        sources: &[u32],
+        method: Method,
+        mut stop_after: impl FnMut(u32, f64) -> f64,
+    ) {
         ws.reset();
+        let mut stop = f64::INFINITY;
         for (k, &s) in sources.iter().enumerate() {
             ws.relax(s, 0.0, k as u32);
         }
         while let Some(HeapItem(d, v)) = ws.heap.pop() {
             let vi = v as usize;
-            if ws.state[vi] == DONE || d > ws.dist[vi] {
+            if ws.nodes[vi].state == DONE || d > ws.nodes[vi].dist {
                 continue; // stale entry
             }
             if d > stop {
                 break;
             }
-            ws.state[vi] = DONE;
+            ws.nodes[vi].state = DONE;
             ws.accepted.push(v);
+            stop = stop_after(v, d);
             match method {
                 Method::Dijkstra => {
                     let (s, e) = (self.nbr_off[vi] as usize, self.nbr_off[vi + 1] as usize);
                     for j in s..e {
-                        ws.relax(self.nbr[j], d + self.nbr_len[j], ws.label[vi]);
+                        ws.relax(self.nbr[j], d + self.nbr_len[j], ws.nodes[vi].label);
                     }
                 }
                 Method::Fmm => {
-                    let lab = ws.label[vi];
+                    let lab = ws.nodes[vi].label;
                     let (s, e) = (self.st_off[vi] as usize, self.st_off[vi + 1] as usize);
-                    for st in &self.st[s..e] {
-                        let t = st.target as usize;
-                        if ws.state[t] == DONE {
+                    let stl = &self.st[s..e];
+                    let mut i = 0;
+                    while i < stl.len() {
+                        let t = stl[i].target;
+                        let mut j = i;
+                        if ws.nodes[t as usize].state == DONE {
+                            while j < stl.len() && stl[j].target == t {
+                                j += 1;
+                            }
+                            i = j;
                             continue;
                         }
-                        let mut cand = d + st.len;
-                        let o = st.other as usize;
-                        if ws.state[o] == DONE {
-                            let to = ws.dist[o];
-                            // the point-source model needs both values from the same source
-                            let p = if ws.label[o] == lab { source_update(st, d, to) } else { f64::INFINITY };
-                            let p = if p.is_finite() { p } else { triangle_update(st, d, to) };
-                            cand = cand.min(p);
+                        let mut cand = f64::INFINITY;
+                        while j < stl.len() && stl[j].target == t {
+                            let st = &stl[j];
+                            j += 1;
+                            cand = cand.min(d + st.len);
+                            let on = ws.nodes[st.other as usize];
+                            if on.state == DONE {
+                                let to = on.dist;
+                                // the point-source model needs both values from the same source
+                                let p = if on.label == lab { source_update(st, d, to) } else { f64::INFINITY };
+                                let p = if p.is_finite() { p } else { triangle_update(st, d, to) };
+                                cand = cand.min(p);
+                            }
                         }
-                        ws.relax(st.target, cand, lab);
+                        ws.relax(t, cand, lab);
+                        i = j;
                     }
                 }
             }
         }
     }
 
+    /// Like [`propagate`](Self::propagate) with `stop = radius`, but continues until every
+    /// vertex adjacent to a vertex with distance `< radius` is accepted too (the propagation
+    /// runs until the next vertex is farther than `radius` + the longest edge leaving a vertex
+    /// inside the disk: a neighbour's final value is at most the vertex's value + the edge).
+    pub fn propagate_band(&self, ws: &mut Workspace, sources: &[u32], radius: f64, method: Method) {
+        let mut stop = radius;
+        self.run(ws, sources, method, |v, d| {
+            if d < radius {
+                stop = stop.max(d + self.vertex_max_edge[v as usize] * (1.0 + 1e-12));
+            }
+            stop
+        });
+    }
+
     /// Distances (N) to the nearest of `sources`; `inf` beyond `max_distance` or unreachable.
     pub fn distances(&self, sources: &[u32], max_distance: f64, method: Method) -> Vec<f64> {
         let mut out = vec![f64::INFINITY; self.n];
+        let src: Vec<u32> = sources.iter().map(|&s| self.internal(s)).collect();
         self.with_workspace(|ws| {
-            self.propagate(ws, sources, max_distance, method);
+            self.propagate(ws, &src, max_distance, method);
             for &v in &ws.accepted {
-                out[v as usize] = ws.dist[v as usize];
+                out[self.external(v) as usize] = ws.dist(v as usize);
             }
         });
         out
@@ -572,9 +704,9 @@ impl GeodesicSolver {
         }
         out.par_chunks_mut(n).zip(sources.par_iter()).for_each(|(row, &s)| {
             self.with_workspace(|ws| {
-                self.propagate(ws, &[s], max_distance, method);
+                self.propagate(ws, &[self.internal(s)], max_distance, method);
                 for &v in &ws.accepted {
-                    row[v as usize] = ws.dist[v as usize];
+                    row[self.external(v) as usize] = ws.dist(v as usize);
                 }
             })
         });
