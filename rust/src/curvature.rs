@@ -33,7 +33,7 @@
 //! vertices themselves). Defaults and how they were chosen: `python/facecorr/curvature.py`.
 
 use crate::mesh::{
-    boundary_vertices, cross, dot, norm, normalized, sub, vertex_normals, Adjacency, Face, Vec3,
+    boundary_from_edge_counts, cross, dot, edges_with_counts, norm, normalized, sub, vertex_normals, Adjacency, Face, Vec3,
 };
 use rayon::prelude::*;
 
@@ -156,36 +156,41 @@ fn neighbourhood(
 
 /// Principal curvatures and directions at one vertex from its neighbourhood `nb` (which contains
 /// the vertex itself). Returns `(k1, k2, d1, d2)`, or None for a degenerate fit.
-pub fn fit_vertex(p: Vec3, n: Vec3, pts: impl Iterator<Item = Vec3>) -> Option<(f64, f64, Vec3, Vec3)> {
+pub fn fit_vertex(p: Vec3, n: Vec3, pts: impl Iterator<Item = Vec3> + Clone) -> Option<(f64, f64, Vec3, Vec3)> {
     if norm(n) == 0.0 {
         return None;
     }
     let u = any_orthogonal(n);
     let w = cross(n, u);
-    let local: Vec<[f64; 3]> = pts
-        .map(|q| {
-            let d = sub(q, p);
-            [dot(d, u), dot(d, w), dot(d, n)]
-        })
-        .collect();
-    if local.len() < 6 {
+    // First pass: count and neighbourhood size h (x, y are scaled by h for conditioning).
+    let (mut count, mut h2) = (0usize, 0.0f64);
+    for q in pts.clone() {
+        let d = sub(q, p);
+        let (x, y) = (dot(d, u), dot(d, w));
+        h2 = h2.max(x * x + y * y);
+        count += 1;
+    }
+    if count < 6 || !(h2 > 0.0) {
         return None;
     }
-    // Scale x, y by the neighbourhood size for conditioning.
-    let h = local.iter().map(|q| (q[0] * q[0] + q[1] * q[1]).sqrt()).fold(0.0, f64::max);
-    if !(h > 0.0) {
-        return None;
-    }
+    let h = h2.sqrt();
+    // Second pass: normal equations (upper triangle; the matrix is symmetric).
     let mut ata = [[0.0; 6]; 6];
     let mut atb = [0.0; 6];
-    for q in &local {
-        let (x, y) = (q[0] / h, q[1] / h);
+    for q in pts {
+        let d = sub(q, p);
+        let (x, y, z) = (dot(d, u) / h, dot(d, w) / h, dot(d, n));
         let row = [x * x, x * y, y * y, x, y, 1.0];
         for r in 0..6 {
-            for c in 0..6 {
+            for c in r..6 {
                 ata[r][c] += row[r] * row[c];
             }
-            atb[r] += row[r] * q[2];
+            atb[r] += row[r] * z;
+        }
+    }
+    for r in 0..6 {
+        for c in 0..r {
+            ata[r][c] = ata[c][r];
         }
     }
     let s = solve6(ata, atb)?;
@@ -231,6 +236,7 @@ pub fn principal_curvatures(v: &[Vec3], f: &[Face], opts: &CurvatureOptions) -> 
     let adj = Adjacency::new(nv, f);
     let res: Vec<(f64, f64, Vec3, Vec3)> = (0..nv)
         .into_par_iter()
+        .with_min_len(1024) // each split allocates an N-long scratch buffer: keep splits few
         .map_init(
             || (vec![false; nv], Vec::new()),
             |(mark, nb), i| {
@@ -328,11 +334,12 @@ pub fn umbilicity(k1: &[f64], k2: &[f64], adj: &Adjacency, opts: &UmbilicOptions
 /// Umbilic vertex ids (ascending) from the curvature fields (see the module docs).
 pub fn umbilics(v: &[Vec3], f: &[Face], k1: &[f64], k2: &[f64], opts: &UmbilicOptions) -> Vec<usize> {
     let nv = v.len();
-    let adj = Adjacency::new(nv, f);
+    let (edges, counts) = edges_with_counts(f);
+    let adj = Adjacency::from_edges(nv, &edges);
     let u = umbilicity(k1, k2, &adj, opts);
     // Vertices near the boundary: multi-source BFS of depth boundary_rings.
     let mut near_boundary = vec![false; nv];
-    let mut frontier = boundary_vertices(nv, f);
+    let mut frontier = boundary_from_edge_counts(nv, &edges, &counts);
     for &b in &frontier {
         near_boundary[b] = true;
     }
@@ -350,6 +357,7 @@ pub fn umbilics(v: &[Vec3], f: &[Face], k1: &[f64], k2: &[f64], opts: &UmbilicOp
     }
     (0..nv)
         .into_par_iter()
+        .with_min_len(1024) // each split allocates an N-long scratch buffer: keep splits few
         .map_init(
             || (vec![false; nv], Vec::new()),
             |(mark, nb), i| {
@@ -374,7 +382,7 @@ pub fn umbilics(v: &[Vec3], f: &[Face], k1: &[f64], k2: &[f64], opts: &UmbilicOp
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::scale;
+    use crate::mesh::{boundary_vertices, scale};
 
     /// Icosphere-like UV-free sphere: subdivided octahedron projected to radius r.
     fn sphere(r: f64, levels: usize) -> (Vec<Vec3>, Vec<Face>) {
