@@ -472,3 +472,36 @@ def test_hypothesis_round_trip(tmp_path, mesh, ext):
     np.testing.assert_allclose(m.vertices, V, rtol=0, atol=0 if ext != ".obj" else 1e-12)
     np.testing.assert_array_equal(m.faces, F)
     assert m.meta["n_degenerate_faces_dropped"] == 0 and m.meta["n_duplicate_vertices_merged"] == 0
+
+
+def test_saved_file_has_umask_permissions(tmp_path):
+    old = os.umask(0o022)
+    try:
+        io.save_mesh(tmp_path / "m.ply", face_like())
+    finally:
+        os.umask(old)
+    assert (tmp_path / "m.ply").stat().st_mode & 0o777 == 0o644
+    assert os.listdir(tmp_path) == ["m.ply"]
+
+
+@pytest.mark.parametrize("where,bad,match", [("point", "1.2.3", "'1.2.3' is not a number in point"),
+                                             ("coordIndex", "0.5", "'0.5' is not an integer in coordIndex"),
+                                             ("point", "nan 0 0", "NaN or infinite")])
+def test_wrl_big_arrays_fast_path_errors(tmp_path, where, bad, match):
+    """Long number lists take a vectorised path; its errors still name the value and the line."""
+    V, F = R.sphere(80.0, 3)  # 642 vertices: lists of > 1000 characters
+    p = tmp_path / "big.wrl"
+    io.save_mesh(p, (V, F))
+    text = p.read_text()
+    at = text.index(f"{where} [") + 3000
+    at = text.index(",", at) + 1
+    lines_before = text.count("\n", 0, at) + 1
+    p.write_text(text[:at] + f" {bad} " + text[at:])
+    with pytest.raises((MeshFileError, MeshError), match=match) as e:
+        io.load_mesh(p, units="mm")
+    if not bad.startswith("nan"):
+        assert f"line {lines_before}:" in str(e.value)
+    # and the intact file reads back exactly through the same path
+    p.write_text(text)
+    m = io.load_mesh(p, units="mm")
+    np.testing.assert_array_equal(m.vertices, V)
