@@ -77,7 +77,7 @@ fn any_orthogonal(n: Vec3) -> Vec3 {
 /// partial pivoting after a tiny ridge. Returns None when singular.
 fn solve6(mut a: [[f64; 6]; 6], mut b: [f64; 6]) -> Option<[f64; 6]> {
     let tr: f64 = (0..6).map(|i| a[i][i]).sum();
-    if !(tr > 0.0) {
+    if !(tr > 0.0 && tr.is_finite()) || a.iter().flatten().chain(b.iter()).any(|x| !x.is_finite()) {
         return None;
     }
     for i in 0..6 {
