@@ -477,6 +477,25 @@ mod tests {
     }
 
     #[test]
+    fn ellipsoid_has_four_umbilics() {
+        let (a, b, c) = (30.0, 20.0, 12.0);
+        let (v, f) = sphere(1.0, 5);
+        let v: Vec<Vec3> = v.iter().map(|p| [a * p[0], b * p[1], c * p[2]]).collect();
+        let k = principal_curvatures(&v, &f, &CurvatureOptions::default());
+        let ids = umbilics(&v, &f, &k.k1, &k.k2, &UmbilicOptions::default());
+        assert_eq!(ids.len(), 4, "{ids:?}");
+        let x = a * ((a * a - b * b) / (a * a - c * c)).sqrt();
+        let z = c * ((b * b - c * c) / (a * a - c * c)).sqrt();
+        for sx in [-1.0, 1.0] {
+            for sz in [-1.0, 1.0] {
+                let t = [sx * x, 0.0, sz * z];
+                let d = ids.iter().map(|&i| norm(sub(v[i], t))).fold(f64::INFINITY, f64::min);
+                assert!(d < 1.5, "umbilic {t:?} nearest detection {d} mm");
+            }
+        }
+    }
+
+    #[test]
     fn solve6_identity() {
         let mut a = [[0.0; 6]; 6];
         for i in 0..6 {
