@@ -202,10 +202,8 @@ def dense_error(registered, dense, template=None, return_mask: bool = False):
 
 
 def _nearest_distances(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    try:  # the Rust KD-tree once the kernels have landed
-        from .spatial import KDTree
-    except ImportError:
-        from scipy.spatial import cKDTree as KDTree
+    from .spatial import KDTree  # the Rust KD-tree (facecorr's thread pool, GIL released)
+
     d, _ = KDTree(targets).query(points, k=1)
     return np.asarray(d, dtype=np.float64)
 
