@@ -334,9 +334,25 @@ def _ply_bytes(V: np.ndarray, F: np.ndarray) -> bytes:
     return header.encode("ascii") + np.ascontiguousarray(V, "<f8").tobytes() + faces.tobytes()
 
 
+def _xyz_lines(V: np.ndarray, prefix: str = "") -> str:
+    return "".join(f"{prefix}{x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+
+
+def _obj_text(V: np.ndarray, F: np.ndarray) -> str:
+    """Wavefront OBJ, coordinates written exactly (shortest round-trip repr), 1-based faces."""
+    faces = "".join(f"f {a} {b} {c}\n" for a, b, c in (F + 1).tolist())
+    return "# written by facecorr\n" + _xyz_lines(V, "v ") + faces
+
+
+def _off_text(V: np.ndarray, F: np.ndarray) -> str:
+    """OFF, coordinates written exactly (shortest round-trip repr)."""
+    faces = "".join(f"3 {a} {b} {c}\n" for a, b, c in F.tolist())
+    return f"OFF\n{len(V)} {len(F)} 0\n" + _xyz_lines(V) + faces
+
+
 def save_mesh(path, mesh_or_VF, units: str | None = None) -> None:
-    """Write a mesh: PLY (binary, float64) and WRL (VRML 2.0, %.17g) by our writers, OBJ and OFF
-    (17 digits), STL and GLB (float32 by format) through trimesh.
+    """Write a mesh: PLY (binary, float64), OBJ, OFF and WRL (text, exact round-trip digits) by our
+    writers; STL and GLB (float32 by format) through trimesh.
 
     Parameters
     ----------
@@ -368,18 +384,16 @@ def save_mesh(path, mesh_or_VF, units: str | None = None) -> None:
         data = write_wrl_text(V, F).encode("ascii")
     elif fmt == "ply":
         data = _ply_bytes(V, F)
+    elif fmt == "obj":
+        data = _obj_text(V, F).encode("ascii")
+    elif fmt == "off":
+        data = _off_text(V, F).encode("ascii")
     else:
         import trimesh
 
         tm = trimesh.Trimesh(vertices=V, faces=F, process=False, validate=False)
         try:
-            if fmt == "obj":
-                data = trimesh.exchange.obj.export_obj(tm, include_normals=False, include_color=False,
-                                                       include_texture=False, digits=17)
-            elif fmt == "off":
-                data = trimesh.exchange.off.export_off(tm, digits=17)
-            else:
-                data = tm.export(file_type=fmt)
+            data = tm.export(file_type=fmt)
         except Exception as e:  # noqa: BLE001
             raise MeshFileError(f"{path}: cannot export {fmt.upper()} ({_one_line(e)})") from None
         if isinstance(data, str):
