@@ -122,3 +122,11 @@ def test_large_mesh_is_consistent():
     """A 40k-vertex sphere: Rust and numpy agree (also exercises the parallel paths)."""
     V, F = R.sphere(50.0, 6)
     check_against_reference(V, F)
+
+
+def test_kdtree_is_cached_and_correct():
+    V, F = R.sphere(10.0, 2)
+    m = Mesh(V, F)
+    assert m.kdtree is m.kdtree
+    d, i = m.kdtree.query(V[[5, 7]] + 1e-6)
+    np.testing.assert_array_equal(i, [5, 7])
