@@ -561,3 +561,18 @@ def test_tiny_and_huge_coordinates_round_trip_exactly(tmp_path, ext):
     m = io.load_mesh(p, units="mm")
     np.testing.assert_array_equal(m.vertices, V)
     assert m.meta["n_duplicate_vertices_merged"] == 0
+
+
+def test_units_inferred_from_the_largest_piece(tmp_path):
+    """Debris 2 m away must not turn a face in mm into an implausible size."""
+    V, F = face_like()
+    V2 = np.vstack([V, [[2000, 0, 0], [2001, 0, 0], [2000, 1, 0]]])
+    F2 = np.vstack([F, [[len(V), len(V) + 1, len(V) + 2]]])
+    p = tmp_path / "debris.ply"
+    io.save_mesh(p, (V2, F2))
+    m = io.load_mesh(p)
+    assert m.units == "mm" and m.meta["n_components"] == 2
+    np.testing.assert_array_equal(m.components, R.components(m.vertices, m.faces))
+    q = tmp_path / "debris_m.ply"
+    io.save_mesh(q, (V2, F2), units="m")
+    assert io.load_mesh(q).units == "m"

@@ -18,9 +18,9 @@ Validation on load (:func:`load_mesh`), in this order, with the counts in ``mesh
 3. degenerate faces (a repeated vertex, or area <= 1e-12 x bbox-diagonal²) are dropped
    (``meta["n_degenerate_faces_dropped"]``); if none is left -> MeshError; then repeated
    triangles (same three vertices) are dropped (``meta["n_duplicate_faces_dropped"]``);
-4. units (see :func:`infer_units`) -> ``mesh.to_mm``, ``mesh.units``;
-5. connected pieces are kept; ``meta["n_components"]`` counts the pieces with faces (the largest
-   by area, ``mesh.largest_component()``, is the face unless told otherwise).
+4. connected pieces are kept; ``meta["n_components"]`` counts the pieces with faces (the largest
+   by area, ``mesh.largest_component()``, is the face unless told otherwise);
+5. units (see :func:`infer_units`, applied to the largest piece) -> ``mesh.to_mm``, ``mesh.units``.
 """
 
 from __future__ import annotations
@@ -292,13 +292,16 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
     else:
         V, F = _read_trimesh(path, fmt)
     V, F, meta = _clean(V, F, str(path), merge_duplicates)
+    # Components in the file's units (labels do not depend on the scale).
+    labels = Mesh(V, F, source=str(path)).components
+    meta["n_components"] = int(len(np.unique(labels[F[:, 0]])))
     inferred = units == "auto"
-    if inferred:
-        units = infer_units(V)
+    if inferred:  # by the largest piece, so that far-away debris does not change the size
+        units = infer_units(V[labels == 0])
         factor = UNIT_TO_MM[units]
     meta.update(format=fmt, units_inferred=inferred)
     mesh = Mesh(V * factor, F, to_mm=factor, units=units, source=str(path), meta=meta)
-    mesh.meta["n_components"] = int(len(np.unique(mesh.components[mesh.faces[:, 0]])))
+    mesh.__dict__["components"] = labels  # seed the cached property
     return mesh
 
 
