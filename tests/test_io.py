@@ -462,14 +462,14 @@ def random_meshes(draw):
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.filter_too_much,
                                                                   HealthCheck.function_scoped_fixture])
-@given(mesh=random_meshes(), ext=st.sampled_from([".ply", ".obj", ".wrl"]))
+@given(mesh=random_meshes(), ext=st.sampled_from([".ply", ".obj", ".wrl", ".off"]))
 def test_hypothesis_round_trip(tmp_path, mesh, ext):
     V, F = mesh
     p = tmp_path / f"h{ext}"
     io.save_mesh(p, (V, F))
     m = io.load_mesh(p, units="mm")
-    # vertex order kept, coordinates exact (PLY float64, WRL %.17g) or to 1e-12 mm (OBJ 17 decimals)
-    np.testing.assert_allclose(m.vertices, V, rtol=0, atol=0 if ext != ".obj" else 1e-12)
+    # vertex order kept, coordinates exact (PLY float64, OBJ repr, WRL %.17g)
+    np.testing.assert_array_equal(m.vertices, V)
     np.testing.assert_array_equal(m.faces, F)
     assert m.meta["n_degenerate_faces_dropped"] == 0 and m.meta["n_duplicate_vertices_merged"] == 0
 
@@ -548,3 +548,31 @@ def test_polygons_are_triangulated(tmp_path):
     q.write_text("OFF\n4 1 0\n0 0 0\n100 0 0\n100 100 0\n0 100 0\n4 0 1 2 3\n")
     m = io.load_mesh(q, units="mm")
     assert m.n_faces == 2 and np.isclose(m.face_areas.sum(), 100 * 100)
+
+
+@pytest.mark.parametrize("ext", sorted(EXACT))
+def test_tiny_and_huge_coordinates_round_trip_exactly(tmp_path, ext):
+    """Fixed-point writers would turn 1e-308 into 0 (a duplicate vertex); ours write repr digits."""
+    V = np.array([[0, 0, 0], [0, 100, 0], [0, 0, 100], [1.1125369292536007e-308, 0, 0],
+                  [123.456789012345678, -9.87654321e-12, 5e2]])
+    F = np.array([[0, 1, 2], [3, 1, 2], [4, 1, 2]])
+    p = tmp_path / f"x{ext}"
+    io.save_mesh(p, (V, F))
+    m = io.load_mesh(p, units="mm")
+    np.testing.assert_array_equal(m.vertices, V)
+    assert m.meta["n_duplicate_vertices_merged"] == 0
+
+
+def test_units_inferred_from_the_largest_piece(tmp_path):
+    """Debris 2 m away must not turn a face in mm into an implausible size."""
+    V, F = face_like()
+    V2 = np.vstack([V, [[2000, 0, 0], [2001, 0, 0], [2000, 1, 0]]])
+    F2 = np.vstack([F, [[len(V), len(V) + 1, len(V) + 2]]])
+    p = tmp_path / "debris.ply"
+    io.save_mesh(p, (V2, F2))
+    m = io.load_mesh(p)
+    assert m.units == "mm" and m.meta["n_components"] == 2
+    np.testing.assert_array_equal(m.components, R.components(m.vertices, m.faces))
+    q = tmp_path / "debris_m.ply"
+    io.save_mesh(q, (V2, F2), units="m")
+    assert io.load_mesh(q).units == "m"

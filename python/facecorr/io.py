@@ -18,9 +18,9 @@ Validation on load (:func:`load_mesh`), in this order, with the counts in ``mesh
 3. degenerate faces (a repeated vertex, or area <= 1e-12 x bbox-diagonal²) are dropped
    (``meta["n_degenerate_faces_dropped"]``); if none is left -> MeshError; then repeated
    triangles (same three vertices) are dropped (``meta["n_duplicate_faces_dropped"]``);
-4. units (see :func:`infer_units`) -> ``mesh.to_mm``, ``mesh.units``;
-5. connected pieces are kept; ``meta["n_components"]`` counts the pieces with faces (the largest
-   by area, ``mesh.largest_component()``, is the face unless told otherwise).
+4. connected pieces are kept; ``meta["n_components"]`` counts the pieces with faces (the largest
+   by area, ``mesh.largest_component()``, is the face unless told otherwise);
+5. units (see :func:`infer_units`, applied to the largest piece) -> ``mesh.to_mm``, ``mesh.units``.
 """
 
 from __future__ import annotations
@@ -292,13 +292,16 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
     else:
         V, F = _read_trimesh(path, fmt)
     V, F, meta = _clean(V, F, str(path), merge_duplicates)
+    # Components in the file's units (labels do not depend on the scale).
+    labels = Mesh(V, F, source=str(path)).components
+    meta["n_components"] = int(len(np.unique(labels[F[:, 0]])))
     inferred = units == "auto"
-    if inferred:
-        units = infer_units(V)
+    if inferred:  # by the largest piece, so that far-away debris does not change the size
+        units = infer_units(V[labels == 0])
         factor = UNIT_TO_MM[units]
     meta.update(format=fmt, units_inferred=inferred)
     mesh = Mesh(V * factor, F, to_mm=factor, units=units, source=str(path), meta=meta)
-    mesh.meta["n_components"] = int(len(np.unique(mesh.components[mesh.faces[:, 0]])))
+    mesh.__dict__["components"] = labels  # seed the cached property
     return mesh
 
 
@@ -334,9 +337,25 @@ def _ply_bytes(V: np.ndarray, F: np.ndarray) -> bytes:
     return header.encode("ascii") + np.ascontiguousarray(V, "<f8").tobytes() + faces.tobytes()
 
 
+def _xyz_lines(V: np.ndarray, prefix: str = "") -> str:
+    return "".join(f"{prefix}{x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+
+
+def _obj_text(V: np.ndarray, F: np.ndarray) -> str:
+    """Wavefront OBJ, coordinates written exactly (shortest round-trip repr), 1-based faces."""
+    faces = "".join(f"f {a} {b} {c}\n" for a, b, c in (F + 1).tolist())
+    return "# written by facecorr\n" + _xyz_lines(V, "v ") + faces
+
+
+def _off_text(V: np.ndarray, F: np.ndarray) -> str:
+    """OFF, coordinates written exactly (shortest round-trip repr)."""
+    faces = "".join(f"3 {a} {b} {c}\n" for a, b, c in F.tolist())
+    return f"OFF\n{len(V)} {len(F)} 0\n" + _xyz_lines(V) + faces
+
+
 def save_mesh(path, mesh_or_VF, units: str | None = None) -> None:
-    """Write a mesh: PLY (binary, float64) and WRL (VRML 2.0, %.17g) by our writers, OBJ and OFF
-    (17 digits), STL and GLB (float32 by format) through trimesh.
+    """Write a mesh: PLY (binary, float64), OBJ, OFF and WRL (text, exact round-trip digits) by our
+    writers; STL and GLB (float32 by format) through trimesh.
 
     Parameters
     ----------
@@ -368,18 +387,16 @@ def save_mesh(path, mesh_or_VF, units: str | None = None) -> None:
         data = write_wrl_text(V, F).encode("ascii")
     elif fmt == "ply":
         data = _ply_bytes(V, F)
+    elif fmt == "obj":
+        data = _obj_text(V, F).encode("ascii")
+    elif fmt == "off":
+        data = _off_text(V, F).encode("ascii")
     else:
         import trimesh
 
         tm = trimesh.Trimesh(vertices=V, faces=F, process=False, validate=False)
         try:
-            if fmt == "obj":
-                data = trimesh.exchange.obj.export_obj(tm, include_normals=False, include_color=False,
-                                                       include_texture=False, digits=17)
-            elif fmt == "off":
-                data = trimesh.exchange.off.export_off(tm, digits=17)
-            else:
-                data = tm.export(file_type=fmt)
+            data = tm.export(file_type=fmt)
         except Exception as e:  # noqa: BLE001
             raise MeshFileError(f"{path}: cannot export {fmt.upper()} ({_one_line(e)})") from None
         if isinstance(data, str):
