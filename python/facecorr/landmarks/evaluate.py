@@ -120,7 +120,7 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     if workers > 1 and len(jobs) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(max_workers=workers) as ex:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=_spawn()) as ex:
             for r in ex.map(_eval_one, jobs):
                 rows.append(r)
                 bar.update()
@@ -141,3 +141,11 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
             for t in table))
     write_json(out / "landmarks_per_scan.json", rows)
     return table, rows, md
+
+
+def _spawn():
+    """Process-pool context: spawn, not fork (a forked child inherits the parent's Rust thread
+    pool in a broken state and can deadlock)."""
+    import multiprocessing
+
+    return multiprocessing.get_context("spawn")

@@ -107,3 +107,27 @@ def fit_pose(points: np.ndarray, tree, starts, coarse_iters: int = 8, fine_iters
         if best is None or rms < best[2]:
             best = (r, t, rms)
     return trimmed_icp(points, tree, best[0], best[1], iters=fine_iters, keep=keep, normals=normals)
+
+
+def fit_poses(points: np.ndarray, tree, starts, n_best: int = 3, min_angle_deg: float = 30.0,
+              coarse_iters: int = 8, fine_iters: int = 40, keep: float = 0.8, normals=None):
+    """Up to ``n_best`` refined poses [(R, t, rms), ...] from the best coarse starts whose
+    rotations differ by more than ``min_angle_deg`` (a face and its upside-down image can fit
+    the trimmed residual almost equally well; the caller decides with the descriptors)."""
+    coarse = []
+    for r0, t0 in starts:
+        r, t, rms, _ = trimmed_icp(points, tree, r0, t0, iters=coarse_iters, keep=keep, normals=normals)
+        coarse.append((rms, r, t))
+    coarse.sort(key=lambda c: c[0])
+    chosen = []
+    cos_min = np.cos(np.radians(min_angle_deg))
+    for rms, r, t in coarse:
+        if all((np.trace(r.T @ c[1]) - 1) / 2 < cos_min for c in chosen):
+            chosen.append((rms, r, t))
+        if len(chosen) >= n_best:
+            break
+    out = []
+    for _, r, t in chosen:
+        r, t, rms, _ = trimmed_icp(points, tree, r, t, iters=fine_iters, keep=keep, normals=normals)
+        out.append((r, t, rms))
+    return out

@@ -55,7 +55,7 @@ NOSE_TIP, SUBNASAL, R_SUBALARE, L_SUBALARE = 6, 7, 4, 5
 
 #: Prediction settings not stored in the model (they do not depend on training).
 PREDICT_DEFAULTS = {
-    "circle_spacing": 2.0,        # mm, subsampling of the geodesic search circles
+    "circle_spacing": 3.0,        # mm, subsampling of the geodesic search circles
     "candidate_spacing": 1.5,     # mm, finest subsampling of the coarse BP search regions
     "refine_spacing": 1.0,        # mm, candidates of the fine BP pass
     "n_starts": 3,                # nose-tip (and subnasal) start umbilics
@@ -270,7 +270,7 @@ def _bp(feat, model, cands, canon_of, pose, opts):
 def _pose(feat, model, hyps, opts):
     """Rigid pose template -> scan: trimmed ICP from the nose-point alignments (both 5/6
     labellings, paper §3.6) and a sweep about the nose-tip normal at each distinct tip."""
-    from .pose import fit_pose, normal_sweep_starts
+    from .pose import fit_poses, normal_sweep_starts
 
     starts, tips, d_f = [], [], {}
     for ids in hyps:
@@ -285,8 +285,22 @@ def _pose(feat, model, hyps, opts):
     for tip in tips[: int(opts["sweep_tips"])]:
         n = feat.tip_normal(tip)
         starts += normal_sweep_starts(tpl_tip, model.icp_tip_normal, feat.vertices[tip], n, int(opts["sweep_angles"]))
-    r, t, rms, _ = fit_pose(model.icp_points, feat.tree, starts, normals=feat.normals)
-    return r, t, rms, d_f
+    poses = fit_poses(model.icp_points, feat.tree, starts, normals=feat.normals)
+    # Among the poses that fit the surface about as well as the best one, keep the one whose
+    # posed landmarks look most like landmarks (FP node log-likelihoods at the nearest vertices):
+    # this separates a face from its upside-down image, which ICP alone can confuse.
+    best_rms = min(p[2] for p in poses)
+    best = None
+    for r, t, rms in poses:
+        if rms > 1.5 * best_rms + 0.5:
+            continue
+        expected = (model.graph_points + model.offset_mean) @ r.T + t
+        _, vid = feat.tree.query(expected)
+        fp = feat.fingerprint(np.asarray(vid, dtype=np.int64))
+        score = sum(float(log_density(fp[i], model.node_mean[i], model.node_cov[i])) for i in range(len(fp)))
+        if best is None or score > best[3]:
+            best = (r, t, rms, score)
+    return best[0], best[1], best[2], d_f
 
 
 def _localise(feat, model, pose, opts, timer):

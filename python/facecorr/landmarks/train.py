@@ -173,7 +173,7 @@ def train(db_dir, out_path, neutral_only: bool = False, workers: int = 2, radii=
     if workers > 1 and len(jobs) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(max_workers=workers) as ex:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=_spawn()) as ex:
             for res in ex.map(_work, jobs):
                 results.append(res)
                 bar.update()
@@ -216,3 +216,11 @@ def train(db_dir, out_path, neutral_only: bool = False, workers: int = 2, radii=
     model.save(out_path)
     model.source = str(out_path)
     return model
+
+
+def _spawn():
+    """Process-pool context: spawn, not fork (a forked child inherits the parent's Rust thread
+    pool in a broken state and can deadlock)."""
+    import multiprocessing
+
+    return multiprocessing.get_context("spawn")
