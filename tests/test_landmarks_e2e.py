@@ -1,0 +1,93 @@
+"""End to end on a small synthetic database: train, predict, CLI JSON contract, hopeless input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from facecorr.errors import LandmarkError
+from facecorr.names import LANDMARK_NAMES
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    from facecorr.landmarks.train import train
+    from facecorr.synth import generate, load_index
+
+    db = tmp_path_factory.mktemp("lmdb")
+    generate(db, preset="tiny", seed=3, workers=2, expressions=["NE", "HA", "SU"], levels=[4], progress=False)
+    model_path = db / "model.npz"
+    model = train(db, model_path, workers=1, progress=False)
+    return db, model_path, model, load_index(db)
+
+
+def test_train_writes_small_valid_model(trained):
+    from facecorr.landmarks.model import load_model
+
+    db, path, model, _ = trained
+    assert path.stat().st_size < 5_000_000
+    m = load_model(path)
+    assert m.params["n_scans"] >= 3 and m.params["n_failed"] == 0
+    assert (m.search_radius > 0).all()
+
+
+def test_predict_on_test_subject_loose_bound(trained):
+    from facecorr.io import load_mesh
+    from facecorr.landmarks import predict_landmarks
+
+    db, path, model, recs = trained
+    errs = []
+    for r in [r for r in recs if r["split"] == "test"]:
+        mesh = load_mesh(r["scan"], units="mm")
+        gt = json.loads(open(r["gt"]).read())["landmarks"]
+        res = predict_landmarks(mesh, model=model)
+        assert set(res.positions) == set(LANDMARK_NAMES)
+        assert all(0.0 <= c <= 1.0 for c in res.confidence.values())
+        assert {"umbilics", "fppca", "pose", "bp", "total"} <= set(res.timings_s)
+        errs.append([np.linalg.norm(res.positions[n] - np.asarray(gt[n])) for n in LANDMARK_NAMES])
+    errs = np.array(errs)
+    # One training subject only: a loose bound (the benchmark measures the real accuracy).
+    assert np.median(errs) < 10.0, errs.round(1)
+    assert (errs.max(axis=1) < 30.0).mean() >= 0.5, errs.round(1)
+
+
+def test_cli_json_contract(trained, tmp_path):
+    from facecorr.cli import main
+
+    db, path, _, recs = trained
+    scan = [r for r in recs if r["split"] == "test"][0]["scan"]
+    out = tmp_path / "lm.json"
+    assert main(["landmarks", scan, "--json", str(out), "--model", str(path)]) == 0
+    data = json.loads(out.read_text())
+    assert data["units"] == "mm"
+    assert set(data["landmarks"]) == set(LANDMARK_NAMES)
+    assert all(len(v) == 3 for v in data["landmarks"].values())
+    assert set(data["confidence"]) == set(LANDMARK_NAMES)
+    # a bad model is a one-line user error (exit 2), and no output file is written
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"junk")
+    out2 = tmp_path / "lm2.json"
+    assert main(["landmarks", scan, "--json", str(out2), "--model", str(bad)]) == 2
+    assert not out2.exists()
+
+
+def test_hopeless_input_is_flagged_or_refused(trained):
+    from facecorr.landmarks import predict_landmarks
+    from facecorr.mesh import Mesh
+
+    _, _, model, _ = trained
+    # a flat sheet: no face at all
+    n = 60
+    x, y = np.meshgrid(np.linspace(0, 150, n), np.linspace(0, 150, n))
+    v = np.column_stack([x.ravel(), y.ravel(), 0.01 * np.sin(x.ravel())])
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    f = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    try:
+        res = predict_landmarks(Mesh(v, f), model=model)
+    except LandmarkError:
+        return
+    assert res.flags, "a flat sheet must not give silent landmarks"
+    assert min(res.confidence.values()) < 0.3
