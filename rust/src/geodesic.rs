@@ -63,6 +63,8 @@ pub enum Method {
     Dijkstra,
 }
 
+/// Heap entry: min-heap on the distance, ties broken by the vertex index (deterministic order).
+/// The heap uses lazy deletion: an improved vertex is pushed again, stale entries are skipped.
 #[derive(Clone, Copy, PartialEq)]
 struct HeapItem(f64, u32);
 impl Eq for HeapItem {}
@@ -72,11 +74,14 @@ impl PartialOrd for HeapItem {
     }
 }
 impl Ord for HeapItem {
-    // min-heap on the distance, ties broken by the vertex index (deterministic order)
     fn cmp(&self, other: &Self) -> Ordering {
         other.0.total_cmp(&self.0).then_with(|| other.1.cmp(&self.1))
     }
 }
+
+/// Label of a value from a plane wave through values of different sources: it is not the
+/// distance to one point, so the point-source update must not use it.
+const MIXED: u32 = u32::MAX;
 
 const FAR: u8 = 0;
 const TRIAL: u8 = 1;
@@ -647,20 +652,28 @@ impl GeodesicSolver {
                             continue;
                         }
                         let mut cand = f64::INFINITY;
+                        let mut cand_lab = lab;
                         while j < stl.len() && stl[j].target == t {
                             let st = &stl[j];
                             j += 1;
-                            cand = cand.min(d + st.len);
+                            if d + st.len < cand {
+                                cand = d + st.len;
+                                cand_lab = lab;
+                            }
                             let on = ws.nodes[st.other as usize];
                             if on.state == DONE {
                                 let to = on.dist;
-                                // the point-source model needs both values from the same source
-                                let p = if on.label == lab { source_update(st, d, to) } else { f64::INFINITY };
+                                // the point-source model needs both values from one point source
+                                let same = on.label == lab && lab != MIXED;
+                                let p = if same { source_update(st, d, to) } else { f64::INFINITY };
                                 let p = if p.is_finite() { p } else { triangle_update(st, d, to) };
-                                cand = cand.min(p);
+                                if p < cand {
+                                    cand = p;
+                                    cand_lab = if on.label == lab { lab } else { MIXED };
+                                }
                             }
                         }
-                        ws.relax(t, cand, lab);
+                        ws.relax(t, cand, cand_lab);
                         i = j;
                     }
                 }
