@@ -25,7 +25,7 @@
 //! added as extra stencils (the original one is kept: its checks make it harmless), with `|CD|`
 //! the straight distance in the unfolded strip, a true path length on the surface.
 
-use std::cmp::Ordering;
+use std::cmp::Reverse;
 use std::collections::{BinaryHeap, HashMap};
 use std::sync::Mutex;
 
@@ -63,21 +63,11 @@ pub enum Method {
     Dijkstra,
 }
 
-/// Heap entry: min-heap on the distance, ties broken by the vertex index (deterministic order).
+/// Heap entry: (bit pattern of the distance, vertex). Distances are non-negative, so their IEEE
+/// bit patterns order like the values and the comparison is a plain integer one; ties are
+/// broken by the vertex index (deterministic order). `Reverse` makes `BinaryHeap` a min-heap.
 /// The heap uses lazy deletion: an improved vertex is pushed again, stale entries are skipped.
-#[derive(Clone, Copy, PartialEq)]
-struct HeapItem(f64, u32);
-impl Eq for HeapItem {}
-impl PartialOrd for HeapItem {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
-    }
-}
-impl Ord for HeapItem {
-    fn cmp(&self, other: &Self) -> Ordering {
-        other.0.total_cmp(&self.0).then_with(|| other.1.cmp(&self.1))
-    }
-}
+type HeapItem = Reverse<(u64, u32)>;
 
 /// Label of a value from a plane wave through values of different sources: it is not the
 /// distance to one point, so the point-source update must not use it.
@@ -148,7 +138,7 @@ impl Workspace {
         if d < node.dist {
             node.dist = d;
             node.label = label;
-            self.heap.push(HeapItem(d, v));
+            self.heap.push(Reverse((d.to_bits(), v)));
         }
     }
 }
@@ -618,7 +608,8 @@ impl GeodesicSolver {
         for (k, &s) in sources.iter().enumerate() {
             ws.relax(s, 0.0, k as u32);
         }
-        while let Some(HeapItem(d, v)) = ws.heap.pop() {
+        while let Some(Reverse((bits, v))) = ws.heap.pop() {
+            let d = f64::from_bits(bits);
             let vi = v as usize;
             if ws.nodes[vi].state == DONE || d > ws.nodes[vi].dist {
                 continue; // stale entry
