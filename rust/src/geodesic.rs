@@ -207,8 +207,9 @@ fn make_stencil(target: u32, other: u32, g11: f64, g22: f64, g12: f64) -> Stenci
 /// Point-source update of the target of `s` (Novotni & Klein): unfold the virtual source `S`
 /// with `|S - A| = ta`, `|S - B| = tb` beyond the edge AB; if the straight ray from `S` to the
 /// target crosses AB (S in the angle at the target) the distance is `|S - C|`. Exact on
-/// developable surfaces. Returns `inf` when the circles do not meet, the ray misses the
-/// triangle, or the result would not be causal.
+/// developable surfaces. Returns `inf` when the ray misses the triangle or the result would not
+/// be causal (the wave reaches the target through another triangle), NaN when the circles do
+/// not meet (the values do not fit one point source: the caller tries a plane wave).
 #[inline]
 fn source_update(s: &Stencil, ta: f64, tb: f64) -> f64 {
     let (ax, bx, by) = (s.len, s.bx, s.by);
@@ -223,7 +224,7 @@ fn source_update(s: &Stencil, ta: f64, tb: f64) -> f64 {
     let alpha = 0.5 * (ta * ta - tb * tb + l2) * inv_l2;
     let beta2 = ta * ta * inv_l2 - alpha * alpha;
     if beta2 < 0.0 {
-        return f64::INFINITY;
+        return f64::NAN; // the values are not those of one point source: try a plane wave
     }
     // perp(e) = (-ey, ex); the origin lies on the side of sign(perp(e) . (0 - A)) = sign(ey * ax) > 0,
     // so the virtual source goes the other way: S = A + alpha e - beta perp(e)
@@ -656,8 +657,8 @@ impl GeodesicSolver {
                                 let to = on.dist;
                                 // the point-source model needs both values from one point source
                                 let same = on.label == lab && lab != MIXED;
-                                let p = if same { source_update(st, d, to) } else { f64::INFINITY };
-                                let p = if p.is_finite() { p } else { triangle_update(st, d, to) };
+                                let p = if same { source_update(st, d, to) } else { f64::NAN };
+                                let p = if p.is_nan() { triangle_update(st, d, to) } else { p };
                                 if p < cand {
                                     cand = p;
                                     cand_lab = if on.label == lab { lab } else { MIXED };
