@@ -45,13 +45,20 @@ def face_mesh():
     return np.ascontiguousarray(V2, dtype=np.float64), np.ascontiguousarray(F2, dtype=np.int64)
 
 
-def timed(fn, repeats):
-    """(median seconds, last result)."""
-    ts, out = [], None
+_CPU = {}
+
+
+def timed(fn, repeats, key=None):
+    """(median wall seconds, last result); the median process CPU seconds go to _CPU[key]."""
+    ts, cs, out = [], [], None
     for _ in range(repeats):
+        c = time.process_time()
         t = time.perf_counter()
         out = fn()
         ts.append(time.perf_counter() - t)
+        cs.append(time.process_time() - c)
+    if key:
+        _CPU[key] = statistics.median(cs)
     return statistics.median(ts), out
 
 
@@ -117,9 +124,12 @@ def main():
     # ---- Finger Print ----
     centers = np.random.default_rng(1).choice(len(V), 1000, replace=False)
     radii = np.linspace(25 / 8, 25, 8)
-    t_fp, fp = timed(lambda: solver.fingerprint(centers, radii), R)
-    rows.append((f"FP 1,000 centres x 8 radii (<= 25 mm), {mesh}", f"{t_fp*1e3:.0f} ms (solver built)", "", "",
-                 f"FP mean {fp.mean():.3f}", "<= 0.2 s on 2 cores", "met" if t_fp <= 0.2 else "MISSED"))
+    t_fp, fp = timed(lambda: solver.fingerprint(centers, radii), R, key="fp")
+    cpu = _CPU["fp"]
+    rows.append((f"FP 1,000 centres x 8 radii (<= 25 mm), {mesh}",
+                 f"{t_fp*1e3:.0f} ms wall (solver built); {cpu*1e3:.0f} ms CPU over both threads",
+                 "", "", f"FP mean {fp.mean():.3f}", "<= 0.2 s on 2 cores",
+                 "met" if t_fp <= 0.2 else f"MISSED (wall; CPU/2 = {cpu/2*1e3:.0f} ms)"))
 
     load1 = os.getloadavg()[0]
     hdr = ("kernel", "facecorr (Rust)", "reference", "ratio", "check / accuracy", "target", "status")
