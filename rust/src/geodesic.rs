@@ -84,9 +84,11 @@ struct Node {
     /// index (into the sources) of the source the value comes from
     label: u32,
     state: u8,
+    /// needed by a band propagation (neighbour of a vertex inside the radius)
+    needed: bool,
 }
 
-const UNTOUCHED: Node = Node { dist: f64::INFINITY, label: 0, state: FAR };
+const UNTOUCHED: Node = Node { dist: f64::INFINITY, label: 0, state: FAR, needed: false };
 
 /// Per-query scratch: distances and states for all vertices, reset sparsely after each query.
 pub struct Workspace {
@@ -157,7 +159,6 @@ pub struct GeodesicSolver {
     vf: Vec<u32>,
     owned_off: Vec<u32>,
     max_edge: f64,
-    vertex_max_edge: Vec<f64>,
     n_split: usize,
     old_of_new: Vec<u32>,
     new_of_old: Vec<u32>,
@@ -452,12 +453,6 @@ impl GeodesicSolver {
         let (nbr_off, nl) = csr(n, &pairs);
         let nbr: Vec<u32> = nl.iter().map(|x| x.0).collect();
         let nbr_len: Vec<f64> = nl.iter().map(|x| x.1).collect();
-        let vertex_max_edge: Vec<f64> = (0..n)
-            .map(|v| {
-                let s = &nbr_len[nbr_off[v] as usize..nbr_off[v + 1] as usize];
-                s.iter().cloned().fold(0.0, f64::max)
-            })
-            .collect();
 
         // stencils, keyed by trigger vertex
         let per_face: Vec<Vec<(u32, Stencil)>> = faces
@@ -529,7 +524,6 @@ impl GeodesicSolver {
             vf,
             owned_off,
             max_edge,
-            vertex_max_edge,
             n_split,
             old_of_new,
             new_of_old,
@@ -591,7 +585,7 @@ impl GeodesicSolver {
     /// until the next one would exceed `stop`. Afterwards `ws.is_accepted(v)` marks final values
     /// (exactly the vertices with distance <= stop); other touched vertices hold upper bounds.
     pub fn propagate(&self, ws: &mut Workspace, sources: &[u32], stop: f64, method: Method) {
-        self.run(ws, sources, method, |_, _| stop);
+        self.run(ws, sources, method, |_, _, _| stop);
     }
 
     /// The propagation loop; `stop(v, d)` is called after accepting `v` at distance `d` and
@@ -602,7 +596,7 @@ impl GeodesicSolver {
         ws: &mut Workspace,
         sources: &[u32],
         method: Method,
-        mut stop_after: impl FnMut(u32, f64) -> f64,
+        mut stop_after: impl FnMut(&mut Workspace, u32, f64) -> f64,
     ) {
         ws.reset();
         let mut stop = f64::INFINITY;
@@ -620,7 +614,7 @@ impl GeodesicSolver {
             }
             ws.nodes[vi].state = DONE;
             ws.accepted.push(v);
-            stop = stop_after(v, d);
+            stop = stop_after(ws, v, d);
             match method {
                 Method::Dijkstra => {
                     let (s, e) = (self.nbr_off[vi] as usize, self.nbr_off[vi + 1] as usize);
@@ -674,16 +668,37 @@ impl GeodesicSolver {
     }
 
     /// Like [`propagate`](Self::propagate) with `stop = radius`, but continues until every
-    /// vertex adjacent to a vertex with distance `< radius` is accepted too (the propagation
-    /// runs until the next vertex is farther than `radius` + the longest edge leaving a vertex
-    /// inside the disk: a neighbour's final value is at most the vertex's value + the edge).
+    /// vertex adjacent to a vertex with distance `< radius` is accepted too (so every triangle
+    /// meeting the disk has final values at its corners). The neighbours of each vertex
+    /// accepted inside the radius are marked as needed and counted; the propagation stops at
+    /// the first vertex beyond `radius` once no needed vertex is pending. The pop order is that
+    /// of a full propagation, so the accepted values are identical to it.
     pub fn propagate_band(&self, ws: &mut Workspace, sources: &[u32], radius: f64, method: Method) {
-        let mut stop = radius;
-        self.run(ws, sources, method, |v, d| {
-            if d < radius {
-                stop = stop.max(d + self.vertex_max_edge[v as usize] * (1.0 + 1e-12));
+        let mut pending = 0usize;
+        self.run(ws, sources, method, |ws, v, d| {
+            let vi = v as usize;
+            if ws.nodes[vi].needed {
+                pending -= 1;
             }
-            stop
+            if d < radius {
+                for j in self.nbr_off[vi] as usize..self.nbr_off[vi + 1] as usize {
+                    let x = self.nbr[j];
+                    let nx = &mut ws.nodes[x as usize];
+                    if nx.state != DONE && !nx.needed {
+                        nx.needed = true;
+                        pending += 1;
+                        if nx.state == FAR {
+                            nx.state = TRIAL;
+                            ws.touched.push(x);
+                        }
+                    }
+                }
+            }
+            if pending > 0 {
+                f64::INFINITY
+            } else {
+                radius
+            }
         });
     }
 
