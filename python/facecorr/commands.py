@@ -116,7 +116,9 @@ def _batch_one(job):
 
 
 def cmd_batch(args) -> int:
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import ProcessPoolExecutor
+
+    from .threads import spawn_context, as_completed
 
     from tqdm import tqdm
 
@@ -141,7 +143,7 @@ def cmd_batch(args) -> int:
         jobs.append((s, out_mesh, out_json, png, args.units))
     rows = []
     failures_path = dst / "failures.json"
-    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
+    with ProcessPoolExecutor(max_workers=max(1, args.workers), mp_context=spawn_context()) as pool:
         futures = [pool.submit(_batch_one, j) for j in jobs]
         for fut in tqdm(as_completed(futures), total=len(futures), desc="registering", unit="scan"):
             rows.append(fut.result())
