@@ -116,13 +116,12 @@ def _batch_one(job):
 
 
 def cmd_batch(args) -> int:
-    from concurrent.futures import ProcessPoolExecutor
-
-    from .threads import spawn_context, as_completed
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     from tqdm import tqdm
 
     from .errors import FacecorrError
+    from .threads import spawn_context
     from .fileio import write_json
 
     src, dst = Path(args.input_dir), Path(args.output_dir)
