@@ -16,7 +16,7 @@
 //!
 //! The objective is a closure `f(x, grad) -> value` that writes the gradient into `grad`.
 //! Termination (first that holds): ‖g‖∞ ≤ `grad_tol`; relative decrease
-//! (f_{k-1} − f_k) / max(|f_{k-1}|, 1e-300) < `rel_tol` (the paper's "relative change in energy
+//! (f_{k-1} − f_k) / max(|f_{k-1}|, 1e-300) < `rel_tol` from the second iteration on (the paper's "relative change in energy
 //! less than 1e-4"); `max_iter` iterations; or a line search that cannot make progress.
 
 use rayon::prelude::*;
@@ -303,7 +303,9 @@ where
             termination = Termination::GradientTolerance;
             break;
         }
-        if (f_old - fx) / f_old.abs().max(1e-300) < opts.rel_tol {
+        // Not after the first step: it is a steepest-descent step of arbitrary length (1/‖g‖∞),
+        // whose small decrease says nothing about convergence.
+        if iterations > 1 && (f_old - fx) / f_old.abs().max(1e-300) < opts.rel_tol {
             termination = Termination::RelativeChange;
             break;
         }
