@@ -61,6 +61,10 @@ pub struct ShapeFitOptions {
     pub reject_boundary: bool,
     /// Weight of the landmark term (0 = the paper; it is constant over the levels).
     pub w_landmark: f64,
+    /// Per template vertex multiplier of the data weight (empty = all 1). Used to switch the
+    /// data term off where the template has no counterpart on a scan, e.g. the inner lip rim,
+    /// which would otherwise be pulled onto visible teeth (the paper's failure case).
+    pub template_weight: Vec<f64>,
 }
 
 impl Default for ShapeFitOptions {
@@ -80,6 +84,7 @@ impl Default for ShapeFitOptions {
             max_distance: f64::INFINITY,
             reject_boundary: true,
             w_landmark: 0.0,
+            template_weight: Vec::new(),
         }
     }
 }
@@ -349,7 +354,8 @@ impl ScanTarget {
             let ok = cosang >= cos_max && !(opts.reject_boundary && self.is_boundary[j]) && d <= opts.max_distance;
             c.target.push(q);
             c.normal.push(m);
-            c.weight.push(if ok { 1.0 } else { 0.0 });
+            let tw = opts.template_weight.get(i).copied().unwrap_or(1.0);
+            c.weight.push(if ok { tw } else { 0.0 });
         }
         c
     }

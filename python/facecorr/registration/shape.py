@@ -31,6 +31,7 @@ SHAPE_DEFAULTS = dict(
     max_distance=float("inf"),
     reject_boundary=True,
     w_landmark=0.0,
+    template_weight=None,
 )
 
 
@@ -65,7 +66,8 @@ def fit_shape(vertices, faces, scan: Mesh, anchors=None, **options) -> ShapeFit:
     anchors : optional (ids (L,), points (L, 3)): template vertex ids pulled to scan positions by
         the landmark term (weight ``w_landmark``; 0 by default = the paper).
     **options : any of :data:`SHAPE_DEFAULTS` (weights, schedule, normal angle in degrees,
-        ``max_distance`` in mm, ``reject_boundary``).
+        ``max_distance`` in mm, ``reject_boundary``, ``template_weight`` (N,) multiplier of the
+        data weight per template vertex, e.g. 0 on the inner lip rim).
 
     Returns
     -------
@@ -92,5 +94,6 @@ def fit_shape(vertices, faces, scan: Mesh, anchors=None, **options) -> ShapeFit:
         memory=int(opts["memory"]), normal_angle_deg=float(opts["normal_angle_deg"]),
         max_distance=float(opts["max_distance"]), reject_boundary=bool(opts["reject_boundary"]),
         w_landmark=float(opts["w_landmark"]),
+        template_weight=None if opts["template_weight"] is None else np.ascontiguousarray(opts["template_weight"], dtype=np.float64),
     )
     return ShapeFit(vertices=out_v, transforms=out_t, solves=list(solves), seconds=time.perf_counter() - t0)

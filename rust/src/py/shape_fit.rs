@@ -113,7 +113,8 @@ fn shape_fit_energy<'py>(
 #[pyo3(signature = (template_vertices, template_faces, scan_vertices, scan_normals, scan_is_boundary,
     anchor_ids, anchor_points, *, w_data=1.0, w_smooth=20000.0, w_rigid=10.0, relax_factor=0.5,
     n_levels=12, max_icp=5, relax_tol=1e-3, max_iter=1000, rel_tol=1e-4, memory=10,
-    normal_angle_deg=80.0, max_distance=f64::INFINITY, reject_boundary=true, w_landmark=0.0))]
+    normal_angle_deg=80.0, max_distance=f64::INFINITY, reject_boundary=true, w_landmark=0.0,
+    template_weight=None))]
 #[allow(clippy::too_many_arguments)]
 fn shape_fit<'py>(
     py: Python<'py>,
@@ -138,6 +139,7 @@ fn shape_fit<'py>(
     max_distance: f64,
     reject_boundary: bool,
     w_landmark: f64,
+    template_weight: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>, Vec<Bound<'py, PyDict>>)> {
     let tv = points3(&template_vertices.as_array(), "template_vertices")?;
     let n = tv.len();
@@ -170,7 +172,21 @@ fn shape_fit<'py>(
     if !(max_distance > 0.0) {
         return Err(value_err(format!("max_distance must be > 0, got {max_distance}")));
     }
+    let template_weight = match template_weight {
+        None => Vec::new(),
+        Some(a) => {
+            let w = a.as_array().to_vec();
+            if w.len() != n {
+                return Err(value_err(format!("template_weight must have {n} entries, got {}", w.len())));
+            }
+            if w.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+                return Err(value_err("template_weight must be finite and >= 0"));
+            }
+            w
+        }
+    };
     let opts = ShapeFitOptions {
+        template_weight,
         w_data: nonneg(w_data, "w_data")?,
         w_smooth: nonneg(w_smooth, "w_smooth")?,
         w_rigid: nonneg(w_rigid, "w_rigid")?,
