@@ -1,0 +1,214 @@
+"""Expression fitting (paper §4.2): blendshape weights α ∈ [0, 1]^K of P(α) = A0 + Σ α_k A_k.
+
+With the template affinely aligned to the scan (T_A = [L | t]), the fitted template is
+P(α) = T_A A0 + Σ α_k L A_k in the scan's frame, and the energy is
+
+    E_expr(α) = Σ_r ω_r ⟨NN(p_r(α)) − p_r(α), n(NN(p_r(α)))⟩²
+
+(point-to-plane to the nearest scan vertex). With the nearest neighbours fixed, E_expr is a
+quadratic in α; it is minimised by scipy's L-BFGS-B with the analytic gradient
+∂E/∂α_k = −2 Σ_r ω_r ρ_r ⟨L A_k,r, n_r⟩ (ρ_r the residual) inside the bounds [0, 1], and the
+nearest neighbours are re-found after each solve (ICP).
+
+Weights ω_r (the paper's two-stage schedule). A match is *valid* if the angle between the normals
+of p_r(α) and of its nearest scan vertex is at most φ (upper face) or φ/2 (chin, mouth); invalid
+matches get weight 0. Stage 1: ω_upper = 1, ω_chin = 1 − V_chin^valid / V_chin, ω_mouth = 0.
+Stage 2 starts once ≥ 80 % of the chin vertices are valid: ω_mouth = 1 − V_mouth^valid / V_mouth.
+The fit stops once ≥ 60 % of the mouth vertices are valid (in stage 2), when α stops changing in
+stage 2, or after ``max_rounds`` rounds. The paper does not say what happens when a share is
+never reached; here a stage also ends when α stops changing or after ``max_stage_rounds``
+rounds. The region weights depend on the valid shares, which depend on α, and the rounds can
+flip between two states; a round whose step does not shrink is halved (damping). As in the paper the weight of a region *grows* with its share of
+invalid matches (a badly matched region pulls harder). ``weights="uniform"`` (all ω = 1 on valid
+matches, stop when α converges) is offered for comparison.
+
+Teeth and mouth interior (the paper's failure case): scans of open mouths show teeth, tongue and
+the mouth socket, which the template does not have, and a lip vertex near them would be pulled
+inwards. Three guards, each measurable on the synthetic open-mouth scans:
+* the normal test at φ/2 = 40° in the mouth region rejects most of the socket's walls;
+* matches farther than ``max_distance`` (mm) are dropped (teeth sit ≥ 5 mm behind the lips);
+* scan boundary vertices are never matches (``reject_boundary``): hair, ears and holes' rims;
+* template vertices on the inner lip rim (``template.boundary_loops["mouth"]`` and its
+  ``lip_rim_rings``-ring) carry no data weight: they have no counterpart on any scan.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize
+
+from ..mesh import Mesh
+
+
+def _kdtree(points):
+    try:
+        from ..spatial import KDTree
+    except ImportError:  # the Rust KD-tree (facecorr.spatial) until it has landed
+        from scipy.spatial import cKDTree as KDTree
+    return KDTree(points)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(N, 3) area-weighted unit vertex normals."""
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    fn = np.cross(b - a, c - a)
+    n = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, ln, out=np.zeros_like(n), where=ln > 0)
+
+
+def rim_mask(template, rings: int) -> np.ndarray:
+    """(N,) bool: the template's inner mouth boundary loop grown by ``rings`` edge rings."""
+    n = template.n_vertices
+    mask = np.zeros(n, dtype=bool)
+    loops = getattr(template, "boundary_loops", {}) or {}
+    if "mouth" not in loops:
+        return mask
+    mask[np.asarray(loops["mouth"], dtype=np.int64)] = True
+    f = np.asarray(template.faces)
+    for _ in range(rings):
+        touch = mask[f].any(axis=1)
+        mask[f[touch].ravel()] = True
+    return mask
+
+
+@dataclass
+class ExpressionFit:
+    """Result of :func:`fit_expression`.
+
+    Attributes
+    ----------
+    alpha : (K,) float64 blending weights in [0, 1].
+    vertices : (N, 3) float64, P(α) in the scan's frame, mm.
+    rounds : list of dict, per ICP round: stage, region weights, valid fractions, energy.
+    seconds : float.
+    """
+
+    alpha: np.ndarray
+    vertices: np.ndarray
+    rounds: list = field(default_factory=list)
+    seconds: float = 0.0
+
+
+EXPRESSION_DEFAULTS = dict(
+    phi_deg=80.0,
+    chin_start=0.8,
+    mouth_stop=0.6,
+    max_rounds=20,
+    max_stage_rounds=8,
+    alpha_tol=1e-3,
+    max_distance=10.0,
+    reject_boundary=True,
+    lip_rim_rings=1,
+    weights="paper",
+)
+
+
+def fit_expression(template, transform, scan: Mesh, tree=None, **options) -> ExpressionFit:
+    """Fit the blendshape weights of ``template`` to ``scan`` (paper §4.2).
+
+    Parameters
+    ----------
+    template : facecorr.template.Template (vertices A0, blendshapes A_k, regions, faces).
+    transform : (3, 4) the landmark alignment T_A (template frame -> scan frame).
+    scan : Mesh, mm.
+    tree : optional KD-tree over ``scan.vertices`` (built if None).
+    **options : phi_deg (80), chin_start (0.8), mouth_stop (0.6), max_rounds (20),
+        max_stage_rounds (8: a stage ends after this many rounds even if its valid share is
+        not reached),
+        alpha_tol (1e-3, max |Δα| to stop), max_distance (mm, 10; inf = the paper),
+        reject_boundary (True), lip_rim_rings (1; -1 = keep the rim), weights ("paper"|"uniform").
+
+    Returns
+    -------
+    ExpressionFit
+    """
+    unknown = set(options) - set(EXPRESSION_DEFAULTS)
+    if unknown:
+        raise TypeError(f"fit_expression: unknown option(s) {', '.join(sorted(unknown))}")
+    o = {**EXPRESSION_DEFAULTS, **options}
+    if o["weights"] not in ("paper", "uniform"):
+        raise ValueError(f"weights must be 'paper' or 'uniform', got {o['weights']!r}")
+    t0 = time.perf_counter()
+    T = np.asarray(transform, dtype=np.float64)
+    lin = T[:, :3]
+    base = np.asarray(template.vertices) @ lin.T + T[:, 3]
+    shapes = np.einsum("knd,ed->kne", np.asarray(template.blendshapes), lin)  # (K, N, 3)
+    faces = np.asarray(template.faces)
+    k = len(shapes)
+    regions = np.asarray(template.regions)
+    upper, chin, mouth = (regions == 0), (regions == 1), (regions == 2)
+    cos_full = np.cos(np.radians(o["phi_deg"]))
+    cos_half = np.cos(np.radians(o["phi_deg"] / 2.0))
+    cos_req = np.where(upper, cos_full, cos_half)
+    tree = tree if tree is not None else _kdtree(scan.vertices)
+    scan_n = scan.vertex_normals
+    scan_b = scan.is_boundary
+    keep = np.ones(template.n_vertices, dtype=bool)
+    if o["lip_rim_rings"] >= 0:
+        keep &= ~rim_mask(template, o["lip_rim_rings"])
+
+    alpha = np.zeros(k)
+    stage = 1
+    stage_rounds = 0
+    prev_step = np.inf
+    rounds = []
+    for _ in range(int(o["max_rounds"])):
+        p = base + np.tensordot(alpha, shapes, axes=1)
+        pn = vertex_normals(p, faces)
+        dist, idx = tree.query(p, k=1)
+        idx = np.asarray(idx, dtype=np.int64)
+        q, qn = scan.vertices[idx], scan_n[idx]
+        valid = (np.einsum("ij,ij->i", pn, qn) >= cos_req) & (np.asarray(dist) <= o["max_distance"]) & keep
+        if o["reject_boundary"]:
+            valid &= ~scan_b[idx]
+        f_chin = float(valid[chin].mean()) if chin.any() else 1.0
+        f_mouth = float(valid[mouth].mean()) if mouth.any() else 1.0
+        if o["weights"] == "paper":
+            if stage == 1 and (f_chin >= o["chin_start"] or stage_rounds >= o["max_stage_rounds"]):
+                stage, stage_rounds, prev_step = 2, 0, np.inf
+            elif stage == 2 and stage_rounds >= o["max_stage_rounds"]:
+                rounds.append(dict(stage=stage, f_chin=f_chin, f_mouth=f_mouth, stopped="stage rounds"))
+                break
+            if stage == 2 and f_mouth >= o["mouth_stop"] and rounds:
+                rounds.append(dict(stage=stage, f_chin=f_chin, f_mouth=f_mouth, stopped="mouth valid"))
+                break
+            w_region = np.array([1.0, 1.0 - f_chin, (1.0 - f_mouth) if stage == 2 else 0.0])
+        else:
+            w_region = np.ones(3)
+        w = np.where(valid, w_region[regions], 0.0)
+        # residual rho(α) = <q - base - Σ α_k S_k, n> = c - J α, per vertex
+        c = np.einsum("ij,ij->i", q - base, qn)
+        J = np.einsum("kij,ij->ik", shapes, qn)  # (N, K)
+
+        def f(a):
+            r = c - J @ a
+            return float(np.sum(w * r * r)), -2.0 * J.T @ (w * r)
+
+        res = minimize(f, alpha, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * k,
+                       options={"maxiter": 200, "ftol": 1e-12, "gtol": 1e-9})
+        a_new = res.x
+        step = float(np.abs(a_new - alpha).max())
+        if step > 0.9 * prev_step:
+            # The valid sets (and with them the paper's region weights) flip back and forth
+            # between two states: damp by taking half the step (a convex combination stays in [0, 1]).
+            a_new = 0.5 * (alpha + a_new)
+            step *= 0.5
+        alpha, prev_step = a_new, step
+        stage_rounds += 1
+        rounds.append(dict(stage=stage, w_chin=float(w_region[1]), w_mouth=float(w_region[2]),
+                           f_chin=f_chin, f_mouth=f_mouth, n_valid=int(valid.sum()), energy=float(res.fun),
+                           step=step))
+        if step < o["alpha_tol"]:
+            if o["weights"] == "paper" and stage == 1:
+                stage = 2  # stage 1 converged without 80 % valid chin matches: fit the mouth anyway
+                continue
+            rounds[-1]["stopped"] = "converged"
+            break
+    p = base + np.tensordot(alpha, shapes, axes=1)
+    return ExpressionFit(alpha=alpha, vertices=p, rounds=rounds, seconds=time.perf_counter() - t0)
