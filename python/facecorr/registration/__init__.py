@@ -14,6 +14,7 @@ import numpy as np
 from ..errors import RegistrationError
 from ..mesh import Mesh
 from ..names import LANDMARK_NAMES
+from ._geometry import boundary_mask, vertex_normals
 from .affine import ALIGN_MODES, align_landmarks, apply_transform
 from .expression import EXPRESSION_DEFAULTS, ExpressionFit, fit_expression, rim_mask
 from .shape import SHAPE_DEFAULTS, ShapeFit, fit_shape
@@ -32,7 +33,8 @@ class RegistrationResult:
     alpha : (K,) float64, fitted blendshape weights in [0, 1] (template.blendshape_names order).
     landmarks_registered : dict name -> (3,) mm, the 8 landmarks read off ``vertices``.
     mhd : float, modified Hausdorff distance registered template -> scan vertices, mm.
-    timings_s : dict stage -> seconds ("affine", "expression", "shape", "total").
+    timings_s : dict stage -> seconds ("affine", "scan_geometry", "expression", "shape", "mhd",
+        "total").
     transform : (3, 4) the landmark alignment T_A (template frame -> scan frame).
     expression_vertices : (N, 3) P(α) after the expression fit, scan frame.
     details : dict with the per-round / per-solve logs of the stages.
@@ -117,10 +119,16 @@ def register(mesh: Mesh, landmarks: dict, template=None, **options) -> Registrat
     transform = align_landmarks(np.asarray(template.vertices)[ids], scan_lm, mode=opts["alignment"])
     timings["affine"] = time.perf_counter() - t0
 
+    t0 = time.perf_counter()
+    scan_normals = vertex_normals(mesh.vertices, mesh.faces)
+    scan_boundary = boundary_mask(mesh.n_vertices, mesh.faces)
+    timings["scan_geometry"] = time.perf_counter() - t0
+
     k = template.n_blendshapes
     details = {}
     if opts["fit_expression"]:
-        expr = fit_expression(template, transform, mesh, **expr_opts)
+        expr = fit_expression(template, transform, mesh, scan_normals=scan_normals, scan_boundary=scan_boundary,
+                              **expr_opts)
         timings["expression"] = expr.seconds
         details["expression_rounds"] = expr.rounds
     else:
@@ -136,7 +144,8 @@ def register(mesh: Mesh, landmarks: dict, template=None, **options) -> Registrat
             shape_opts["template_weight"] = tw
         if "w_landmark" not in shape_opts:
             shape_opts["w_landmark"] = float(opts["shape_landmark_weight"])
-        shape = fit_shape(expr.vertices, template.faces, mesh, anchors=(ids, scan_lm), **shape_opts)
+        shape = fit_shape(expr.vertices, template.faces, mesh, anchors=(ids, scan_lm), scan_normals=scan_normals,
+                          scan_boundary=scan_boundary, **shape_opts)
         timings["shape"] = shape.seconds
         details["shape_solves"] = shape.solves
         vertices = shape.vertices

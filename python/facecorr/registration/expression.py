@@ -6,9 +6,14 @@ P(α) = T_A A0 + Σ α_k L A_k in the scan's frame, and the energy is
     E_expr(α) = Σ_r ω_r ⟨NN(p_r(α)) − p_r(α), n(NN(p_r(α)))⟩²
 
 (point-to-plane to the nearest scan vertex). With the nearest neighbours fixed, E_expr is a
-quadratic in α; it is minimised by scipy's L-BFGS-B with the analytic gradient
-∂E/∂α_k = −2 Σ_r ω_r ρ_r ⟨L A_k,r, n_r⟩ (ρ_r the residual) inside the bounds [0, 1], and the
-nearest neighbours are re-found after each solve (ICP).
+quadratic in α with gradient ∂E/∂α_k = −2 Σ_r ω_r ρ_r ⟨L A_k,r, n_r⟩ (ρ_r the residual); each
+solve minimises it inside the bounds [0, 1], and the nearest neighbours are re-found after each
+solve (ICP). Two bounded solvers: ``solver="newton"`` (default), a projected Newton method with
+an active set on the K×K normal equations (exact for this quadratic, a few iterations), and
+``solver="lbfgsb"``, scipy's L-BFGS-B with the analytic gradient (the paper's quasi-Newton). They
+agree to 1e-6 (tests); the default exists because scipy's L-BFGS-B calls into multi-threaded
+OpenBLAS for its 14 unknowns: on our 2 shared cores one call took 0.27 s with 2 BLAS threads vs
+2 ms with 1 (measured, 20 repetitions), i.e. 4.4 s vs 0.33 s for a whole expression fit.
 
 Weights ω_r (the paper's two-stage schedule). A match is *valid* if the angle between the normals
 of p_r(α) and of its nearest scan vertex is at most φ (upper face) or φ/2 (chin, mouth); invalid
@@ -41,6 +46,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ..mesh import Mesh
+from ._geometry import boundary_mask, vertex_normals
 
 
 def _kdtree(points):
@@ -49,17 +55,6 @@ def _kdtree(points):
     except ImportError:  # the Rust KD-tree (facecorr.spatial) until it has landed
         from scipy.spatial import cKDTree as KDTree
     return KDTree(points)
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(N, 3) area-weighted unit vertex normals."""
-    a, b, c = (vertices[faces[:, k]] for k in range(3))
-    fn = np.cross(b - a, c - a)
-    n = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, ln, out=np.zeros_like(n), where=ln > 0)
 
 
 def rim_mask(template, rings: int) -> np.ndarray:
@@ -106,10 +101,42 @@ EXPRESSION_DEFAULTS = dict(
     reject_boundary=True,
     lip_rim_rings=1,
     weights="paper",
+    solver="newton",
 )
 
 
-def fit_expression(template, transform, scan: Mesh, tree=None, **options) -> ExpressionFit:
+def box_qp(h, g, x0, lo=0.0, hi=1.0, max_iter=100) -> np.ndarray:
+    """Minimise ½ xᵀHx − gᵀx over lo ≤ x ≤ hi (H symmetric positive semi-definite, small).
+
+    Projected Newton with an active set (Bertsekas 1982): variables at a bound whose gradient
+    points outwards are held, a Newton step is taken on the others, and an Armijo search along
+    the projection arc keeps the decrease. Exact in a few iterations for K ≈ 14.
+    """
+    x = np.clip(np.asarray(x0, dtype=np.float64), lo, hi)
+    fx = 0.5 * x @ h @ x - g @ x
+    for _ in range(max_iter):
+        grad = h @ x - g
+        free = ~(((x <= lo) & (grad > 0)) | ((x >= hi) & (grad < 0)))
+        d = np.zeros_like(x)
+        if free.any():
+            hf = h[np.ix_(free, free)]
+            ridge = 1e-12 * max(float(np.trace(hf)), 1e-300)  # H may be singular (unused shapes)
+            d[free] = -np.linalg.solve(hf + ridge * np.eye(len(hf)), grad[free])
+        t = 1.0
+        while True:
+            xn = np.clip(x + t * d, lo, hi)
+            fn = 0.5 * xn @ h @ xn - g @ xn
+            if fn <= fx + 1e-4 * grad @ (xn - x) or t < 1e-10:
+                break
+            t *= 0.5
+        if np.abs(xn - x).max() < 1e-12:
+            break
+        x, fx = xn, fn
+    return x
+
+
+def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None, scan_boundary=None,
+                   **options) -> ExpressionFit:
     """Fit the blendshape weights of ``template`` to ``scan`` (paper §4.2).
 
     Parameters
@@ -118,11 +145,14 @@ def fit_expression(template, transform, scan: Mesh, tree=None, **options) -> Exp
     transform : (3, 4) the landmark alignment T_A (template frame -> scan frame).
     scan : Mesh, mm.
     tree : optional KD-tree over ``scan.vertices`` (built if None).
+    scan_normals, scan_boundary : optional precomputed (S, 3) unit normals and (S,) bool boundary
+        flags of the scan (computed if None).
     **options : phi_deg (80), chin_start (0.8), mouth_stop (0.6), max_rounds (20),
         max_stage_rounds (8: a stage ends after this many rounds even if its valid share is
         not reached),
         alpha_tol (1e-3, max |Δα| to stop), max_distance (mm, 10; inf = the paper),
-        reject_boundary (True), lip_rim_rings (1; -1 = keep the rim), weights ("paper"|"uniform").
+        reject_boundary (True), lip_rim_rings (1; -1 = keep the rim), weights ("paper"|"uniform"),
+        solver ("newton"|"lbfgsb").
 
     Returns
     -------
@@ -134,6 +164,8 @@ def fit_expression(template, transform, scan: Mesh, tree=None, **options) -> Exp
     o = {**EXPRESSION_DEFAULTS, **options}
     if o["weights"] not in ("paper", "uniform"):
         raise ValueError(f"weights must be 'paper' or 'uniform', got {o['weights']!r}")
+    if o["solver"] not in ("newton", "lbfgsb"):
+        raise ValueError(f"solver must be 'newton' or 'lbfgsb', got {o['solver']!r}")
     t0 = time.perf_counter()
     T = np.asarray(transform, dtype=np.float64)
     lin = T[:, :3]
@@ -147,8 +179,8 @@ def fit_expression(template, transform, scan: Mesh, tree=None, **options) -> Exp
     cos_half = np.cos(np.radians(o["phi_deg"] / 2.0))
     cos_req = np.where(upper, cos_full, cos_half)
     tree = tree if tree is not None else _kdtree(scan.vertices)
-    scan_n = scan.vertex_normals
-    scan_b = scan.is_boundary
+    scan_n = vertex_normals(scan.vertices, scan.faces) if scan_normals is None else np.asarray(scan_normals)
+    scan_b = boundary_mask(scan.n_vertices, scan.faces) if scan_boundary is None else np.asarray(scan_boundary, bool)
     keep = np.ones(template.n_vertices, dtype=bool)
     if o["lip_rim_rings"] >= 0:
         keep &= ~rim_mask(template, o["lip_rim_rings"])
@@ -186,13 +218,18 @@ def fit_expression(template, transform, scan: Mesh, tree=None, **options) -> Exp
         c = np.einsum("ij,ij->i", q - base, qn)
         J = np.einsum("kij,ij->ik", shapes, qn)  # (N, K)
 
-        def f(a):
-            r = c - J @ a
-            return float(np.sum(w * r * r)), -2.0 * J.T @ (w * r)
+        if o["solver"] == "newton":
+            jw = J * w[:, None]
+            a_new = box_qp(2.0 * J.T @ jw, 2.0 * jw.T @ c, alpha)
+        else:
+            def f(a):
+                r = c - J @ a
+                return float(np.sum(w * r * r)), -2.0 * J.T @ (w * r)
 
-        res = minimize(f, alpha, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * k,
-                       options={"maxiter": 200, "ftol": 1e-12, "gtol": 1e-9})
-        a_new = res.x
+            a_new = minimize(f, alpha, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * k,
+                             options={"maxiter": 200, "ftol": 1e-12, "gtol": 1e-9}).x
+        r_new = c - J @ a_new
+        energy = float(np.sum(w * r_new * r_new))
         step = float(np.abs(a_new - alpha).max())
         if step > 0.9 * prev_step:
             # The valid sets (and with them the paper's region weights) flip back and forth
@@ -202,7 +239,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, **options) -> Exp
         alpha, prev_step = a_new, step
         stage_rounds += 1
         rounds.append(dict(stage=stage, w_chin=float(w_region[1]), w_mouth=float(w_region[2]),
-                           f_chin=f_chin, f_mouth=f_mouth, n_valid=int(valid.sum()), energy=float(res.fun),
+                           f_chin=f_chin, f_mouth=f_mouth, n_valid=int(valid.sum()), energy=energy,
                            step=step))
         if step < o["alpha_tol"]:
             if o["weights"] == "paper" and stage == 1:

@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import _core
 from ..mesh import Mesh
+from ._geometry import boundary_mask, vertex_normals
 
 #: Defaults (the paper's weights; levels / ICP counts measured, see BENCHMARKS.md).
 SHAPE_DEFAULTS = dict(
@@ -54,7 +55,8 @@ class ShapeFit:
     seconds: float = 0.0
 
 
-def fit_shape(vertices, faces, scan: Mesh, anchors=None, **options) -> ShapeFit:
+def fit_shape(vertices, faces, scan: Mesh, anchors=None, scan_normals=None, scan_boundary=None,
+              **options) -> ShapeFit:
     """Deform a template onto a scan with per-vertex affine transforms (paper §4.3).
 
     Parameters
@@ -65,6 +67,8 @@ def fit_shape(vertices, faces, scan: Mesh, anchors=None, **options) -> ShapeFit:
     scan : Mesh, the target (mm); its vertex normals and boundary vertices are used.
     anchors : optional (ids (L,), points (L, 3)): template vertex ids pulled to scan positions by
         the landmark term (weight ``w_landmark``; 0 by default = the paper).
+    scan_normals, scan_boundary : optional precomputed (S, 3) unit normals and (S,) bool boundary
+        flags of the scan (computed if None).
     **options : any of :data:`SHAPE_DEFAULTS` (weights, schedule, normal angle in degrees,
         ``max_distance`` in mm, ``reject_boundary``, ``template_weight`` (N,) multiplier of the
         data weight per template vertex, e.g. 0 on the inner lip rim).
@@ -85,8 +89,10 @@ def fit_shape(vertices, faces, scan: Mesh, anchors=None, **options) -> ShapeFit:
         ids = np.ascontiguousarray(anchors[0], dtype=np.int64).reshape(-1)
         pts = np.ascontiguousarray(anchors[1], dtype=np.float64).reshape(-1, 3)
     t0 = time.perf_counter()
+    sn = vertex_normals(scan.vertices, scan.faces) if scan_normals is None else scan_normals
+    sb = boundary_mask(scan.n_vertices, scan.faces) if scan_boundary is None else scan_boundary
     out_v, out_t, solves = _core.shape_fit(
-        v, f, scan.vertices, np.ascontiguousarray(scan.vertex_normals), np.ascontiguousarray(scan.is_boundary, dtype=bool),
+        v, f, scan.vertices, np.ascontiguousarray(sn, dtype=np.float64), np.ascontiguousarray(sb, dtype=bool),
         ids, pts,
         w_data=float(opts["w_data"]), w_smooth=float(opts["w_smooth"]), w_rigid=float(opts["w_rigid"]),
         relax_factor=float(opts["relax_factor"]), n_levels=int(opts["n_levels"]), max_icp=int(opts["max_icp"]),
