@@ -128,7 +128,8 @@ def register(mesh: Mesh, landmarks: dict, template=None, **options) -> Registrat
     details = {}
     if opts["fit_expression"]:
         expr = fit_expression(template, transform, mesh, scan_normals=scan_normals, scan_boundary=scan_boundary,
-                              **expr_opts)
+                              landmarks=(ids, scan_lm), **expr_opts)
+        transform = expr.transform
         timings["expression"] = expr.seconds
         details["expression_rounds"] = expr.rounds
     else:

@@ -81,6 +81,7 @@ class ExpressionFit:
     alpha : (K,) float64 blending weights in [0, 1].
     vertices : (N, 3) float64, P(α) in the scan's frame, mm.
     rounds : list of dict, per ICP round: stage, region weights, valid fractions, energy.
+    transform : (3, 4) the alignment used at the end (refined if ``refine_affine``).
     seconds : float.
     """
 
@@ -88,6 +89,7 @@ class ExpressionFit:
     vertices: np.ndarray
     rounds: list = field(default_factory=list)
     seconds: float = 0.0
+    transform: np.ndarray | None = None
 
 
 EXPRESSION_DEFAULTS = dict(
@@ -102,6 +104,9 @@ EXPRESSION_DEFAULTS = dict(
     lip_rim_rings=1,
     weights="paper",
     solver="newton",
+    point_to_point=0.0,
+    refine_affine=False,
+    landmark_weight=1.0,
 )
 
 
@@ -135,8 +140,32 @@ def box_qp(h, g, x0, lo=0.0, hi=1.0, max_iter=100) -> np.ndarray:
     return x
 
 
+def _refit_affine(p0, q, qn, w, landmarks, landmark_weight, a0):
+    """Least-squares 3x4 T minimising Σ w ⟨q − T p0, n⟩² + μ Σ_l ‖T l̄ − l‖² (None if singular)."""
+    ph = np.hstack([p0, np.ones((len(p0), 1))])
+    a = (qn[:, :, None] * ph[:, None, :]).reshape(len(p0), 12)  # row of ⟨n, T p⟩ in vec(T)
+    b = np.einsum("ij,ij->i", qn, q)
+    aw = a * w[:, None]
+    h = a.T @ aw
+    g = aw.T @ b
+    ids, pts = landmarks
+    ids = np.asarray(ids, dtype=np.int64)
+    mu = landmark_weight * float(w.sum()) / max(len(ids), 1)
+    lh = np.hstack([p0[ids], np.ones((len(ids), 1))])
+    for k in range(3):
+        h[4 * k:4 * k + 4, 4 * k:4 * k + 4] += mu * lh.T @ lh
+        g[4 * k:4 * k + 4] += mu * lh.T @ np.asarray(pts, dtype=np.float64)[:, k]
+    try:
+        t = np.linalg.solve(h, g).reshape(3, 4)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.isfinite(t).all() or np.linalg.det(t[:, :3]) <= 0:
+        return None
+    return t
+
+
 def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None, scan_boundary=None,
-                   **options) -> ExpressionFit:
+                   landmarks=None, **options) -> ExpressionFit:
     """Fit the blendshape weights of ``template`` to ``scan`` (paper §4.2).
 
     Parameters
@@ -147,12 +176,17 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     tree : optional KD-tree over ``scan.vertices`` (built if None).
     scan_normals, scan_boundary : optional precomputed (S, 3) unit normals and (S,) bool boundary
         flags of the scan (computed if None).
+    landmarks : optional (template vertex ids (L,), scan positions (L, 3)) for ``refine_affine``.
     **options : phi_deg (80), chin_start (0.8), mouth_stop (0.6), max_rounds (20),
         max_stage_rounds (8: a stage ends after this many rounds even if its valid share is
         not reached),
         alpha_tol (1e-3, max |Δα| to stop), max_distance (mm, 10; inf = the paper),
         reject_boundary (True), lip_rim_rings (1; -1 = keep the rim), weights ("paper"|"uniform"),
-        solver ("newton"|"lbfgsb").
+        refine_affine (False: T_A stays the landmark alignment, the paper; True: after each α
+        solve, T_A is re-solved by linear least squares on the same point-to-plane matches plus
+        the landmarks, weight ``landmark_weight`` x the total data weight spread over them),
+        solver ("newton"|"lbfgsb"), point_to_point (λ in [0, 1): the energy becomes
+        Σ ω_r [(1 − λ) ρ_plane² + λ ‖q_r − p_r‖²]; 0 = the paper).
 
     Returns
     -------
@@ -168,9 +202,13 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         raise ValueError(f"solver must be 'newton' or 'lbfgsb', got {o['solver']!r}")
     t0 = time.perf_counter()
     T = np.asarray(transform, dtype=np.float64)
+    a0 = np.asarray(template.vertices, dtype=np.float64)
+    a_k = np.asarray(template.blendshapes, dtype=np.float64)
     lin = T[:, :3]
-    base = np.asarray(template.vertices) @ lin.T + T[:, 3]
-    shapes = np.einsum("knd,ed->kne", np.asarray(template.blendshapes), lin)  # (K, N, 3)
+    base = a0 @ lin.T + T[:, 3]
+    shapes = np.einsum("knd,ed->kne", a_k, lin)  # (K, N, 3)
+    if o["refine_affine"] and landmarks is None:
+        raise ValueError("refine_affine needs the landmarks (template ids, scan positions)")
     faces = np.asarray(template.faces)
     k = len(shapes)
     regions = np.asarray(template.regions)
@@ -214,9 +252,16 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         else:
             w_region = np.ones(3)
         w = np.where(valid, w_region[regions], 0.0)
+        w_vert = w
         # residual rho(α) = <q - base - Σ α_k S_k, n> = c - J α, per vertex
         c = np.einsum("ij,ij->i", q - base, qn)
         J = np.einsum("kij,ij->ik", shapes, qn)  # (N, K)
+        lam = float(o["point_to_point"])
+        if lam > 0.0:
+            # plus λ ‖q − p(α)‖²: three more residual rows per vertex (point-to-point)
+            c = np.concatenate([c, (q - base).T.ravel()])
+            J = np.vstack([J, shapes.transpose(2, 1, 0).reshape(-1, k)])
+            w = np.concatenate([(1.0 - lam) * w, lam * np.tile(w, 3)])
 
         if o["solver"] == "newton":
             jw = J * w[:, None]
@@ -238,6 +283,15 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
             step *= 0.5
         alpha, prev_step = a_new, step
         stage_rounds += 1
+        if o["refine_affine"]:
+            t_new = _refit_affine(a0 + np.tensordot(alpha, a_k, axes=1), q, qn, w_vert, landmarks,
+                                  float(o["landmark_weight"]), a0)
+            if t_new is not None:
+                moved = float(np.abs((a0 @ (t_new[:, :3] - T[:, :3]).T) + (t_new[:, 3] - T[:, 3])).max())
+                T = t_new
+                base = a0 @ T[:, :3].T + T[:, 3]
+                shapes = np.einsum("knd,ed->kne", a_k, T[:, :3])
+                step = max(step, moved / 10.0)  # 0.01 mm of motion counts like 1e-3 of α
         rounds.append(dict(stage=stage, w_chin=float(w_region[1]), w_mouth=float(w_region[2]),
                            f_chin=f_chin, f_mouth=f_mouth, n_valid=int(valid.sum()), energy=energy,
                            step=step))
@@ -248,4 +302,4 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
             rounds[-1]["stopped"] = "converged"
             break
     p = base + np.tensordot(alpha, shapes, axes=1)
-    return ExpressionFit(alpha=alpha, vertices=p, rounds=rounds, seconds=time.perf_counter() - t0)
+    return ExpressionFit(alpha=alpha, vertices=p, rounds=rounds, seconds=time.perf_counter() - t0, transform=T)

@@ -33,6 +33,7 @@ SHAPE_DEFAULTS = dict(
     reject_boundary=True,
     w_landmark=0.0,
     template_weight=None,
+    precondition=True,
 )
 
 
@@ -100,6 +101,7 @@ def fit_shape(vertices, faces, scan: Mesh, anchors=None, scan_normals=None, scan
         memory=int(opts["memory"]), normal_angle_deg=float(opts["normal_angle_deg"]),
         max_distance=float(opts["max_distance"]), reject_boundary=bool(opts["reject_boundary"]),
         w_landmark=float(opts["w_landmark"]),
+        precondition=bool(opts["precondition"]),
         template_weight=None if opts["template_weight"] is None else np.ascontiguousarray(opts["template_weight"], dtype=np.float64),
     )
     return ShapeFit(vertices=out_v, transforms=out_t, solves=list(solves), seconds=time.perf_counter() - t0)

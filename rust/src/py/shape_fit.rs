@@ -114,7 +114,7 @@ fn shape_fit_energy<'py>(
     anchor_ids, anchor_points, *, w_data=1.0, w_smooth=20000.0, w_rigid=10.0, relax_factor=0.5,
     n_levels=12, max_icp=5, relax_tol=1e-3, max_iter=1000, rel_tol=1e-4, memory=10,
     normal_angle_deg=80.0, max_distance=f64::INFINITY, reject_boundary=true, w_landmark=0.0,
-    template_weight=None))]
+    template_weight=None, precondition=true))]
 #[allow(clippy::too_many_arguments)]
 fn shape_fit<'py>(
     py: Python<'py>,
@@ -140,6 +140,7 @@ fn shape_fit<'py>(
     reject_boundary: bool,
     w_landmark: f64,
     template_weight: Option<PyReadonlyArray1<'py, f64>>,
+    precondition: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>, Vec<Bound<'py, PyDict>>)> {
     let tv = points3(&template_vertices.as_array(), "template_vertices")?;
     let n = tv.len();
@@ -187,6 +188,7 @@ fn shape_fit<'py>(
     };
     let opts = ShapeFitOptions {
         template_weight,
+        precondition,
         w_data: nonneg(w_data, "w_data")?,
         w_smooth: nonneg(w_smooth, "w_smooth")?,
         w_rigid: nonneg(w_rigid, "w_rigid")?,
