@@ -204,3 +204,21 @@ def test_load_ground_truth_errors(tmp_path, t):
     bad.write_text("{not json")
     with pytest.raises(FacecorrError, match="unreadable"):
         evaluate.load_ground_truth(bad)
+
+
+def test_landmark_errors_and_summary():
+    gt = {n: np.zeros(3) for n in names.LANDMARK_NAMES}
+    pred = {n: np.array([0.0, 0.0, 2.0 * i]) for i, n in enumerate(names.LANDMARK_NAMES)}
+    e = evaluate.landmark_errors(pred, gt)
+    assert list(e) == list(names.LANDMARK_NAMES)
+    assert [e[n] for n in names.LANDMARK_NAMES] == [2.0 * i for i in range(8)]
+    del pred["subnasal"]
+    assert np.isnan(evaluate.landmark_errors(pred, gt)["subnasal"])
+    scans = [{"nose_tip": 4.0, "subnasal": 12.0}, {"nose_tip": 8.0, "subnasal": float("nan")},
+             {"nose_tip": 25.0}]
+    rows = {r["landmark"]: r for r in evaluate.summarize_landmarks(scans)}
+    assert list(rows) == ["nose_tip", "subnasal"]
+    assert rows["nose_tip"]["mean"] == pytest.approx(37 / 3) and rows["nose_tip"]["max"] == 25.0
+    assert rows["nose_tip"]["T10"] == pytest.approx(200 / 3) and rows["nose_tip"]["T30"] == 100.0
+    assert rows["subnasal"]["n_scans"] == 1 and rows["subnasal"]["T10"] == 0.0
+    assert evaluate.format_region_table(list(rows.values())).startswith("| Landmark |")

@@ -199,9 +199,11 @@ def test_cli_json_and_png(tmp_path, capsys):
     assert {k: v["count"] for k, v in out["regions"].items()} == {
         n: len(t.region_ids(n)) for n in REGION_NAMES}
     assert sum(v["count"] for v in out["regions"].values()) == t.n_vertices
-    png = tmp_path / "t.png"
-    args = parser.parse_args(["template", "--png", str(png)])
+    png = tmp_path / "sub" / "t.png"
+    args = parser.parse_args(["template", "--png", str(png), "--json", str(tmp_path / "t.json")])
     assert args.func(args) == 0
+    assert json.loads((tmp_path / "t.json").read_text()) == out
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["sub", "t.json", "t.png"]  # no temp files
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 50_000
 
 
@@ -211,9 +213,21 @@ def test_cli_bad_input(tmp_path):
 
     parser = argparse.ArgumentParser()
     add_commands(parser.add_subparsers(dest="command"))
-    for argv in (["template"], ["template", "--png", str(tmp_path / "x.jpg")],
-                 ["template", "--png", str(tmp_path / "missing" / "x.png")]):
+    for argv in (["template"], ["template", "--json", str(tmp_path / "t.json"), "--png", str(tmp_path / "x.jpg")]):
         args = parser.parse_args(argv)
         with pytest.raises(FacecorrError):
             args.func(args)
     assert not list(tmp_path.iterdir())
+
+
+def test_visible_points_depth_test():
+    from facecorr.template_commands import visible_points
+
+    # a square in the z = 0 plane facing +z; points above it are seen, below it hidden
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    pts = np.array([[0, 0, 1.0], [0, 0, -1.0], [0.2, 0.3, 0.0], [5, 5, -3.0]])
+    np.testing.assert_array_equal(visible_points(v, f, pts, np.eye(3)), [True, False, True, True])
+    # seen from behind (yaw 180 deg) it is the other way round
+    r = np.diag([-1.0, 1.0, -1.0])
+    np.testing.assert_array_equal(visible_points(v, f, pts, r), [False, True, True, True])

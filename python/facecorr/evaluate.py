@@ -13,6 +13,8 @@ vertex order, in the scan's frame, millimetres. Ground truth comes from the synt
   triangle at known barycentric coordinates; where that triangle belongs to the template, the
   registered template is interpolated at the same coordinates and compared with the vertex's
   noise-free position.
+- :func:`landmark_errors`, :func:`summarize_landmarks`: the 8 predicted landmarks against the
+  truth (paper Tables 1-2); :func:`format_region_table` prints either summary as Markdown.
 - :func:`mhd`: the modified Hausdorff distance of the paper, mean over P of the distance to the
   nearest vertex of F (one-directional, as the paper defines it).
 """
@@ -80,6 +82,23 @@ def region_errors(registered, gt_ibug68, template=None, keep_missing: bool = Fal
     return out
 
 
+def _summary_row(per_scan, thresholds) -> dict | None:
+    """mean/std/max over all values, T<th> = % of scans whose every value is under th."""
+    errs = [np.atleast_1d(np.asarray(e, float)) for e in per_scan]
+    errs = [e[np.isfinite(e)] for e in errs]
+    errs = [e for e in errs if len(e)]
+    if not errs:
+        return None
+    allp = np.concatenate(errs)
+    worst = np.array([e.max() for e in errs])
+    row = {"mean": float(allp.mean()), "std": float(allp.std()), "max": float(allp.max())}
+    for th in thresholds:
+        row[f"T{th:g}"] = float(100.0 * (worst < th).mean())
+    row["n_scans"] = len(errs)
+    row["n_points"] = int(len(allp))
+    return row
+
+
 def summarize_regions(per_scan, thresholds=THRESHOLDS_MM) -> list[dict]:
     """Table 3 rows from per-scan :func:`region_errors` dicts.
 
@@ -94,30 +113,50 @@ def summarize_regions(per_scan, thresholds=THRESHOLDS_MM) -> list[dict]:
     """
     rows = []
     for region in IBUG68_REGIONS:
-        errs = [np.asarray(s[region], float) for s in per_scan if region in s]
-        errs = [e[np.isfinite(e)] for e in errs]
-        errs = [e for e in errs if len(e)]
-        if not errs:
+        row = _summary_row([s[region] for s in per_scan if region in s], thresholds)
+        if row is not None:
+            rows.append({"region": region, **row})
+    return rows
+
+
+def landmark_errors(predicted: dict, gt_landmarks: dict) -> dict:
+    """Euclidean error (mm) of each predicted landmark, name -> float (NaN where either is missing)."""
+    out = {}
+    for name in LANDMARK_NAMES:
+        p, g = predicted.get(name), gt_landmarks.get(name)
+        if p is None or g is None:
+            out[name] = float("nan")
             continue
-        allp = np.concatenate(errs)
-        worst = np.array([e.max() for e in errs])
-        row = {"region": region, "mean": float(allp.mean()), "std": float(allp.std()),
-               "max": float(allp.max())}
-        for th in thresholds:
-            row[f"T{th:g}"] = float(100.0 * (worst < th).mean())
-        row["n_scans"] = len(errs)
-        row["n_points"] = int(len(allp))
-        rows.append(row)
+        out[name] = float(np.linalg.norm(np.asarray(p, float).reshape(3) - np.asarray(g, float).reshape(3)))
+    return out
+
+
+def summarize_landmarks(per_scan, thresholds=THRESHOLDS_MM) -> list[dict]:
+    """Tables 1-2 rows from per-scan :func:`landmark_errors` dicts: per landmark mean ± std, max
+    and T10/T20/T30 (% of scans with that landmark's error under the threshold).
+
+    Returns
+    -------
+    list of dicts ``{"landmark", "mean", "std", "max", "T10", "T20", "T30", "n_scans",
+    "n_points"}`` in LANDMARK_NAMES order (landmarks nobody measured are omitted).
+    """
+    rows = []
+    for name in LANDMARK_NAMES:
+        row = _summary_row([s[name] for s in per_scan if name in s], thresholds)
+        if row is not None:
+            rows.append({"landmark": name, **row})
     return rows
 
 
 def format_region_table(rows) -> str:
-    """Markdown table of :func:`summarize_regions` rows (paper Table 3 layout)."""
+    """Markdown table of :func:`summarize_regions` (or :func:`summarize_landmarks`) rows, laid
+    out like the paper's Tables 1-3."""
+    key = "landmark" if rows and "landmark" in rows[0] else "region"
     ts = [k for k in rows[0] if k.startswith("T")] if rows else []
-    head = "| Region | Mean ± Std [mm] | Max [mm] | " + " | ".join(f"{k} [%]" for k in ts) + " | Scans |"
+    head = f"| {key.capitalize()} | Mean ± Std [mm] | Max [mm] | " + " | ".join(f"{k} [%]" for k in ts) + " | Scans |"
     lines = [head, "|" + "---|" * (4 + len(ts))]
     for r in rows:
-        lines.append(f"| {r['region']} | {r['mean']:.2f} ± {r['std']:.2f} | {r['max']:.2f} | "
+        lines.append(f"| {r[key]} | {r['mean']:.2f} ± {r['std']:.2f} | {r['max']:.2f} | "
                      + " | ".join(f"{r[k]:.1f}" for k in ts) + f" | {r['n_scans']} |")
     return "\n".join(lines) + "\n"
 

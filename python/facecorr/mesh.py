@@ -13,6 +13,7 @@ from functools import cached_property
 
 import numpy as np
 
+from . import _core
 from .errors import MeshError
 
 
@@ -75,40 +76,27 @@ class Mesh:
     @cached_property
     def face_areas(self) -> np.ndarray:
         """(M,) triangle areas, mm^2."""
-        return 0.5 * np.linalg.norm(self.face_normals_unnormalized, axis=1)
+        return _core.mesh_face_areas(self.vertices, self.faces)
 
     @cached_property
     def vertex_normals(self) -> np.ndarray:
         """(N, 3) unit area-weighted vertex normals (zero for isolated vertices)."""
-        n = np.zeros_like(self.vertices)
-        fn = self.face_normals_unnormalized
-        for k in range(3):
-            np.add.at(n, self.faces[:, k], fn)
-        length = np.linalg.norm(n, axis=1, keepdims=True)
-        return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+        return _core.mesh_vertex_normals(self.vertices, self.faces)
 
     @cached_property
     def vertex_areas(self) -> np.ndarray:
         """(N,) barycentric vertex areas (a third of each incident triangle), mm^2."""
-        a = np.zeros(self.n_vertices)
-        for k in range(3):
-            np.add.at(a, self.faces[:, k], self.face_areas / 3.0)
-        return a
+        return _core.mesh_vertex_areas(self.vertices, self.faces)
 
     @cached_property
     def edges(self) -> np.ndarray:
-        """(E, 2) unique undirected edges, sorted pairs (i < j)."""
-        e = np.concatenate([self.faces[:, [0, 1]], self.faces[:, [1, 2]], self.faces[:, [2, 0]]])
-        e.sort(axis=1)
-        return np.unique(e, axis=0)
+        """(E, 2) int64 unique undirected edges, sorted pairs (i < j), lexicographic order."""
+        return _core.mesh_edges(self.faces, self.n_vertices)
 
     @cached_property
     def boundary_vertices(self) -> np.ndarray:
-        """(B,) sorted ids of vertices on a boundary edge (an edge used by one triangle)."""
-        e = np.concatenate([self.faces[:, [0, 1]], self.faces[:, [1, 2]], self.faces[:, [2, 0]]])
-        e.sort(axis=1)
-        uniq, counts = np.unique(e, axis=0, return_counts=True)
-        return np.unique(uniq[counts == 1].ravel())
+        """(B,) int64 sorted ids of vertices on a boundary edge (an edge used by one triangle)."""
+        return _core.mesh_boundary_vertices(self.faces, self.n_vertices)
 
     @cached_property
     def is_boundary(self) -> np.ndarray:
@@ -119,19 +107,60 @@ class Mesh:
 
     @cached_property
     def components(self) -> np.ndarray:
-        """(N,) connected-component label of each vertex (0 = the largest by area)."""
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import connected_components
+        """(N,) int64 connected-component label of each vertex: 0 = the largest by area, then by
+        decreasing area (equal areas: the component with the lower vertex id first). A vertex in
+        no triangle is a component of its own."""
+        return _core.mesh_components(self.vertices, self.faces)
 
-        e = self.edges
-        n = self.n_vertices
-        g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-        _, labels = connected_components(g, directed=False)
-        area = np.bincount(labels, weights=self.vertex_areas)
-        order = np.argsort(-area, kind="stable")
-        rank = np.empty_like(order)
-        rank[order] = np.arange(len(order))
-        return rank[labels]
+    @property
+    def n_components(self) -> int:
+        """Number of connected components (isolated vertices count)."""
+        return int(self.components.max()) + 1
+
+    def submesh(self, vertex_mask: np.ndarray) -> tuple[Mesh, np.ndarray]:
+        """The part of the mesh on the selected vertices.
+
+        Parameters
+        ----------
+        vertex_mask : (N,) bool, or (K,) int vertex ids.
+
+        Returns
+        -------
+        mesh : Mesh with the selected vertices (in ascending id order) and the triangles whose
+            three vertices are all selected; same units/to_mm/source, meta copied.
+        old_ids : (K,) int64, ``old_ids[i]`` is the id in ``self`` of the new vertex ``i``.
+
+        Raises
+        ------
+        MeshError
+            If the selection keeps no triangle.
+        """
+        mask = np.asarray(vertex_mask)
+        if mask.dtype == bool:
+            if mask.shape != (self.n_vertices,):
+                raise MeshError(f"vertex_mask must have shape ({self.n_vertices},), got {mask.shape}")
+        else:
+            ids = mask.astype(np.int64, copy=False).ravel()
+            if ids.size and (ids.min() < 0 or ids.max() >= self.n_vertices):
+                raise MeshError(f"vertex ids out of range [0, {self.n_vertices - 1}]")
+            mask = np.zeros(self.n_vertices, dtype=bool)
+            mask[ids] = True
+        old_ids = np.flatnonzero(mask).astype(np.int64)
+        keep = mask[self.faces].all(axis=1)
+        if not keep.any():
+            raise MeshError(f"{self.source or 'mesh'}: the selection keeps no triangle")
+        new_id = np.full(self.n_vertices, -1, dtype=np.int64)
+        new_id[old_ids] = np.arange(len(old_ids))
+        sub = Mesh(self.vertices[old_ids], new_id[self.faces[keep]], to_mm=self.to_mm,
+                   units=self.units, source=self.source, meta=dict(self.meta))
+        return sub, old_ids
+
+    def largest_component(self) -> tuple[Mesh, np.ndarray]:
+        """The largest connected piece by area (the face, for a scan with debris).
+
+        Returns ``(mesh, old_ids)`` as :meth:`submesh`.
+        """
+        return self.submesh(self.components == 0)
 
     @property
     def diagonal(self) -> float:

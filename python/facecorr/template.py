@@ -22,7 +22,7 @@ Rest pose A0 (6706 vertices, 13120 triangles)
 
 Blendshapes A_k (K = 14 displacement fields, mm, weights meant in [0, 1])
     Chosen from the 53 ICT (ARKit-named) expression shapes, mostly jaw, lips and mouth corners
-    plus brows, as the paper asks (Sec. 4.2: "no two blendshapes add the same kind of
+    plus brows, as the paper asks (expression fitting: "no two blendshapes add the same kind of
     displacement"). Redundancy is measured by the cosine similarity of the flattened
     displacement fields over the template (``blendshape_cosine`` in the npz); the rule is that no
     two kept fields have cosine >= MAX_BLENDSHAPE_COSINE = 0.65 (the same motion twice) or
@@ -83,9 +83,10 @@ Regions (paper Fig. 7: upper face, chin, mouth), per vertex, ``REGION_NAMES`` or
         the jaw below the lower lip: vertices below the lowest lip point (iBUG 57), outside the
         mouth, that jawOpen moves by at least 35% of its largest displacement (the chin and the
         front of the mandible, not the cheeks near the jaw hinge), and whose rest-pose normal is
-        within 60 deg of +z. The last condition leaves out the under-chin surface, which a frontal scanner does
-        not see: the paper's expression fit waits until 80% of the chin vertices have a valid
-        nearest neighbour on the scan, which an unseen half of the region would never allow.
+        within 60 deg of +z. The last condition leaves out the under-chin surface, which a
+        frontal scanner does not see: the paper's expression fit waits until 80% of the chin
+        vertices have a valid nearest neighbour on the scan, which an unseen half of the region
+        would never allow (with it, about half the jaw-moving vertices below the lip face down).
     upper
         the rest (forehead, eyes, nose, cheeks, and the under-chin surface).
     Each region is one edge-connected piece (small islands are given to the neighbouring region).
@@ -216,6 +217,11 @@ class Template:
     @property
     def n_blendshapes(self) -> int:
         return len(self.blendshapes)
+
+    @property
+    def region_names(self) -> tuple:
+        """REGION_NAMES: ``regions`` holds indices into it."""
+        return REGION_NAMES
 
     @property
     def landmarks(self) -> dict:
@@ -470,8 +476,11 @@ def build_template(model_path: str | Path = ICT_MODEL_PATH) -> dict[str, np.ndar
 
 def save_template(path: str | Path = TEMPLATE_PATH, model_path: str | Path = ICT_MODEL_PATH) -> dict:
     """Build the template and write it to ``path`` (compressed npz). Returns the arrays."""
+    from .fileio import atomic_path
+
     arrays = build_template(model_path)
-    np.savez_compressed(path, **arrays)
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, **arrays)
     return arrays
 
 

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import FacecorrError
+from .fileio import atomic_path
 from .names import LANDMARK_NAMES
 from .template import REGION_NAMES, Template, load_template
 
@@ -134,20 +135,19 @@ def draw_template_png(out_path: str | Path, t: Template | None = None, dpi: int 
 def cmd_template(args) -> int:
     t = load_template()
     did = False
+    if args.png is not None and Path(args.png).suffix.lower() != ".png":
+        raise FacecorrError(f"--png expects a .png path, got {args.png!r}")
     if args.json is not None:
         text = json.dumps(template_contract(t))
         if args.json == "-":
             sys.stdout.write(text + "\n")
         else:
-            Path(args.json).write_text(text + "\n")
+            with atomic_path(args.json) as tmp:
+                tmp.write_text(text + "\n")
         did = True
     if args.png is not None:
-        out = Path(args.png)
-        if out.suffix.lower() != ".png":
-            raise FacecorrError(f"--png expects a .png path, got {args.png!r}")
-        if not out.parent.exists():
-            raise FacecorrError(f"--png: directory {str(out.parent)!r} does not exist")
-        draw_template_png(out, t)
+        with atomic_path(args.png) as tmp:
+            draw_template_png(tmp, t)
         did = True
     if not did:
         raise FacecorrError("facecorr template: give --json and/or --png OUT.png")

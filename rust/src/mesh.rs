@@ -1,1 +1,338 @@
-//! TODO(owner): see issue. Placeholder module; replaced by its implementation.
+//! Triangle-mesh utilities: face normals and areas, area-weighted vertex normals, barycentric
+//! vertex areas, unique edges, boundary vertices, vertex adjacency and connected components.
+//!
+//! Vertices are `[f64; 3]` (millimetres), faces `[usize; 3]` indices into the vertices. The
+//! functions assume valid indices (the bindings check them). Per-face work runs in parallel with
+//! rayon; scatter-adds into vertices are sequential (they are memory-bound and cheap).
+
+use rayon::prelude::*;
+
+pub type Vec3 = [f64; 3];
+pub type Face = [usize; 3];
+
+#[inline]
+pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline]
+pub fn add(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+#[inline]
+pub fn scale(a: Vec3, s: f64) -> Vec3 {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+#[inline]
+pub fn dot(a: Vec3, b: Vec3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+#[inline]
+pub fn cross(a: Vec3, b: Vec3) -> Vec3 {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+#[inline]
+pub fn norm(a: Vec3) -> f64 {
+    dot(a, a).sqrt()
+}
+/// `a / |a|`, or zero when `|a| == 0`.
+#[inline]
+pub fn normalized(a: Vec3) -> Vec3 {
+    let n = norm(a);
+    if n > 0.0 {
+        scale(a, 1.0 / n)
+    } else {
+        [0.0; 3]
+    }
+}
+
+/// (M) cross products (b - a) x (c - a): direction = face normal, length = 2 x area.
+pub fn face_normals_unnormalized(v: &[Vec3], f: &[Face]) -> Vec<Vec3> {
+    f.par_iter()
+        .map(|t| cross(sub(v[t[1]], v[t[0]]), sub(v[t[2]], v[t[0]])))
+        .collect()
+}
+
+/// (M) triangle areas.
+pub fn face_areas(v: &[Vec3], f: &[Face]) -> Vec<f64> {
+    f.par_iter()
+        .map(|t| 0.5 * norm(cross(sub(v[t[1]], v[t[0]]), sub(v[t[2]], v[t[0]]))))
+        .collect()
+}
+
+/// (N) unit area-weighted vertex normals (sum of the incident faces' unnormalised normals,
+/// normalised); zero for vertices without (non-degenerate) faces.
+pub fn vertex_normals(v: &[Vec3], f: &[Face]) -> Vec<Vec3> {
+    let fn_ = face_normals_unnormalized(v, f);
+    let mut n = vec![[0.0; 3]; v.len()];
+    for (t, c) in f.iter().zip(&fn_) {
+        for &i in t {
+            n[i] = add(n[i], *c);
+        }
+    }
+    n.par_iter_mut().for_each(|x| *x = normalized(*x));
+    n
+}
+
+/// (N) barycentric vertex areas: a third of the area of each incident triangle.
+pub fn vertex_areas(v: &[Vec3], f: &[Face]) -> Vec<f64> {
+    let fa = face_areas(v, f);
+    let mut a = vec![0.0; v.len()];
+    for (t, &x) in f.iter().zip(&fa) {
+        for &i in t {
+            a[i] += x / 3.0;
+        }
+    }
+    a
+}
+
+/// All undirected edges of all faces (3M, with repetitions), sorted, with their use count:
+/// returns the unique edges `(i, j)` with `i < j` in lexicographic order and how many faces use each.
+pub fn edges_with_counts(f: &[Face]) -> (Vec<[usize; 2]>, Vec<u32>) {
+    let mut all: Vec<(usize, usize)> = Vec::with_capacity(3 * f.len());
+    for t in f {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            all.push(if a < b { (a, b) } else { (b, a) });
+        }
+    }
+    all.par_sort_unstable();
+    let mut edges: Vec<[usize; 2]> = Vec::with_capacity(all.len() / 2 + 1);
+    let mut counts: Vec<u32> = Vec::with_capacity(all.len() / 2 + 1);
+    for e in all {
+        match edges.last() {
+            Some(last) if last[0] == e.0 && last[1] == e.1 => *counts.last_mut().unwrap() += 1,
+            _ => {
+                edges.push([e.0, e.1]);
+                counts.push(1);
+            }
+        }
+    }
+    (edges, counts)
+}
+
+/// (E) unique undirected edges `(i, j)`, `i < j`, lexicographically sorted.
+pub fn edges(f: &[Face]) -> Vec<[usize; 2]> {
+    edges_with_counts(f).0
+}
+
+/// Sorted ids of the vertices on a boundary edge (an edge used by exactly one face).
+pub fn boundary_vertices(n_vertices: usize, f: &[Face]) -> Vec<usize> {
+    let (e, c) = edges_with_counts(f);
+    let mut on = vec![false; n_vertices];
+    for (e, &c) in e.iter().zip(&c) {
+        if c == 1 {
+            on[e[0]] = true;
+            on[e[1]] = true;
+        }
+    }
+    (0..n_vertices).filter(|&i| on[i]).collect()
+}
+
+/// Vertex adjacency in compressed form: the neighbours of vertex `i` are
+/// `nbr[ptr[i]..ptr[i + 1]]`, sorted ascending, without `i` itself.
+#[derive(Clone, Debug)]
+pub struct Adjacency {
+    pub ptr: Vec<usize>,
+    pub nbr: Vec<usize>,
+}
+
+impl Adjacency {
+    pub fn new(n_vertices: usize, f: &[Face]) -> Self {
+        let e = edges(f);
+        let mut deg = vec![0usize; n_vertices + 1];
+        for &[a, b] in &e {
+            deg[a + 1] += 1;
+            deg[b + 1] += 1;
+        }
+        for i in 0..n_vertices {
+            deg[i + 1] += deg[i];
+        }
+        let ptr = deg;
+        let mut fill = ptr.clone();
+        let mut nbr = vec![0usize; 2 * e.len()];
+        for &[a, b] in &e {
+            nbr[fill[a]] = b;
+            fill[a] += 1;
+            nbr[fill[b]] = a;
+            fill[b] += 1;
+        }
+        // Edges are sorted by (a, b): the lists of `a` get their `b`s in order, but the entries
+        // pushed as the second element arrive in order of `a` too, so each list is the merge of
+        // two sorted runs; sort to make the order simple to rely on.
+        for i in 0..n_vertices {
+            nbr[ptr[i]..ptr[i + 1]].sort_unstable();
+        }
+        Adjacency { ptr, nbr }
+    }
+
+    #[inline]
+    pub fn neighbours(&self, i: usize) -> &[usize] {
+        &self.nbr[self.ptr[i]..self.ptr[i + 1]]
+    }
+
+    pub fn n_vertices(&self) -> usize {
+        self.ptr.len() - 1
+    }
+
+    /// The vertices within `rings` edge hops of `i` (including `i`), in breadth-first order.
+    /// `mark` must be an all-false buffer of length N; it is left all-false on return.
+    pub fn rings(&self, i: usize, rings: usize, mark: &mut [bool], out: &mut Vec<usize>) {
+        out.clear();
+        out.push(i);
+        mark[i] = true;
+        let mut start = 0;
+        for _ in 0..rings {
+            let end = out.len();
+            if start == end {
+                break;
+            }
+            for k in start..end {
+                let u = out[k];
+                for &w in self.neighbours(u) {
+                    if !mark[w] {
+                        mark[w] = true;
+                        out.push(w);
+                    }
+                }
+            }
+            start = end;
+        }
+        for &u in out.iter() {
+            mark[u] = false;
+        }
+    }
+}
+
+fn find(parent: &mut [usize], mut x: usize) -> usize {
+    while parent[x] != x {
+        parent[x] = parent[parent[x]];
+        x = parent[x];
+    }
+    x
+}
+
+/// (N) connected-component label of each vertex, 0 = the largest by area (sum of its faces'
+/// areas), then decreasing area; equal areas keep the order of their lowest vertex id. A vertex in
+/// no face is a component of its own (area 0).
+pub fn components(v: &[Vec3], f: &[Face]) -> Vec<usize> {
+    let n = v.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    for t in f {
+        for k in 1..3 {
+            let (a, b) = (find(&mut parent, t[0]), find(&mut parent, t[k]));
+            if a != b {
+                // Keep the smaller id as the root: labels then follow lowest vertex ids.
+                if a < b {
+                    parent[b] = a
+                } else {
+                    parent[a] = b
+                }
+            }
+        }
+    }
+    // First-appearance labels (component containing the lowest vertex id first).
+    let mut label = vec![usize::MAX; n];
+    let mut n_comp = 0;
+    let mut lab = vec![0usize; n];
+    for i in 0..n {
+        let r = find(&mut parent, i);
+        if label[r] == usize::MAX {
+            label[r] = n_comp;
+            n_comp += 1;
+        }
+        lab[i] = label[r];
+    }
+    let va = vertex_areas(v, f);
+    let mut area = vec![0.0; n_comp];
+    for i in 0..n {
+        area[lab[i]] += va[i];
+    }
+    let mut order: Vec<usize> = (0..n_comp).collect();
+    order.sort_by(|&a, &b| area[b].partial_cmp(&area[a]).unwrap_or(std::cmp::Ordering::Equal));
+    let mut rank = vec![0usize; n_comp];
+    for (r, &c) in order.iter().enumerate() {
+        rank[c] = r;
+    }
+    lab.iter().map(|&l| rank[l]).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two triangles forming the unit square in z = 0, plus a separate small triangle.
+    fn sample() -> (Vec<Vec3>, Vec<Face>) {
+        let v = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [5.0, 0.0, 0.0],
+            [5.5, 0.0, 0.0],
+            [5.0, 0.5, 0.0],
+        ];
+        let f = vec![[0, 1, 2], [0, 2, 3], [4, 5, 6]];
+        (v, f)
+    }
+
+    #[test]
+    fn areas_and_normals() {
+        let (v, f) = sample();
+        let fa = face_areas(&v, &f);
+        assert!((fa[0] - 0.5).abs() < 1e-15 && (fa[2] - 0.125).abs() < 1e-15);
+        let va = vertex_areas(&v, &f);
+        assert!((va[0] - 1.0 / 3.0).abs() < 1e-15);
+        assert!((va[1] - 0.5 / 3.0).abs() < 1e-15);
+        let total: f64 = va.iter().sum();
+        assert!((total - 1.125).abs() < 1e-14);
+        for n in vertex_normals(&v, &f) {
+            assert!((n[2] - 1.0).abs() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn edges_boundary_components() {
+        let (v, f) = sample();
+        let e = edges(&f);
+        assert_eq!(e, vec![[0, 1], [0, 2], [0, 3], [1, 2], [2, 3], [4, 5], [4, 6], [5, 6]]);
+        assert_eq!(boundary_vertices(v.len(), &f), vec![0, 1, 2, 3, 4, 5, 6]);
+        let c = components(&v, &f);
+        assert_eq!(c, vec![0, 0, 0, 0, 1, 1, 1]);
+        // Make the small triangle the large one: labels swap.
+        let mut v2 = v.clone();
+        v2[5] = [50.0, 0.0, 0.0];
+        v2[6] = [5.0, 50.0, 0.0];
+        assert_eq!(components(&v2, &f), vec![1, 1, 1, 1, 0, 0, 0]);
+    }
+
+    #[test]
+    fn closed_surface_has_no_boundary() {
+        let v = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let f = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+        assert!(boundary_vertices(4, &f).is_empty());
+        let adj = Adjacency::new(4, &f);
+        assert_eq!(adj.neighbours(0), &[1, 2, 3]);
+        let mut mark = vec![false; 4];
+        let mut out = Vec::new();
+        adj.rings(0, 1, &mut mark, &mut out);
+        assert_eq!(out.len(), 4);
+        assert!(mark.iter().all(|m| !m));
+    }
+
+    #[test]
+    fn rings_on_a_strip() {
+        // A strip of triangles 0-1-2-3-4-5 (a path graph plus diagonals).
+        let v: Vec<Vec3> = (0..6).map(|i| [i as f64, (i % 2) as f64, 0.0]).collect();
+        let f = vec![[0, 1, 2], [1, 3, 2], [2, 3, 4], [3, 5, 4]];
+        let adj = Adjacency::new(6, &f);
+        let mut mark = vec![false; 6];
+        let mut out = Vec::new();
+        adj.rings(0, 1, &mut mark, &mut out);
+        out.sort();
+        assert_eq!(out, vec![0, 1, 2]);
+        adj.rings(0, 2, &mut mark, &mut out);
+        out.sort();
+        assert_eq!(out, vec![0, 1, 2, 3, 4]);
+        let _ = v;
+    }
+}

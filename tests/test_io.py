@@ -1,0 +1,474 @@
+"""facecorr.io: round trips of every format, units, and every bad-input case (files in tmp_path)."""
+
+import os
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings, strategies as st
+
+import ref_mesh as R
+from facecorr import io
+from facecorr.errors import MeshError, MeshFileError, UnitsError
+from facecorr.mesh import Mesh
+
+
+def face_like():
+    """A 160 mm sphere patch: plausible face size in mm."""
+    V, F = R.sphere(80.0, 2)
+    return V, F
+
+
+EXACT = {".ply", ".obj", ".off", ".wrl", ".vrml"}  # float64 text/binary
+FLOAT32 = {".stl", ".glb"}  # formats that store float32
+
+
+@pytest.mark.parametrize("ext", sorted(EXACT | FLOAT32))
+def test_round_trip_every_format(tmp_path, ext):
+    V, F = face_like()
+    p = tmp_path / f"m{ext}"
+    io.save_mesh(p, Mesh(V, F))
+    m = io.load_mesh(p)
+    assert m.units == "mm" and m.to_mm == 1.0 and m.meta["units_inferred"]
+    assert m.meta["n_components"] == 1 and m.meta["n_degenerate_faces_dropped"] == 0
+    tol = 0 if ext in EXACT else 1e-4  # float32 of ~80 mm: ~5e-6 mm
+    if ext == ".stl":  # STL stores triangles only: vertex ids come from merging, order by first use
+        assert m.meta["n_duplicate_vertices_merged"] == 3 * len(F) - len(V)
+        np.testing.assert_allclose(m.vertices[m.faces], V[F], atol=tol, rtol=0)
+    else:
+        assert m.meta["n_duplicate_vertices_merged"] == 0
+        np.testing.assert_allclose(m.vertices, V, atol=tol, rtol=0)
+        np.testing.assert_array_equal(m.faces, F)
+
+
+@pytest.mark.parametrize("units,factor", [("cm", 10.0), ("m", 1000.0), ("mm", 1.0)])
+@pytest.mark.parametrize("ext", [".ply", ".obj", ".wrl"])
+def test_units_auto_and_back(tmp_path, units, factor, ext):
+    V, F = face_like()  # mm
+    p = tmp_path / f"m{ext}"
+    io.save_mesh(p, (V, F), units=units)  # file in `units`
+    raw = io.load_mesh(p, units="mm")
+    np.testing.assert_allclose(raw.vertices, V / factor, rtol=1e-12)
+    m = io.load_mesh(p)  # auto
+    assert m.units == units and m.to_mm == factor
+    np.testing.assert_allclose(m.vertices, V, rtol=1e-12)
+    np.testing.assert_allclose(m.to_source_units(m.vertices), V / factor, rtol=1e-12)
+    # written back in the scan's own units by default
+    q = tmp_path / f"back{ext}"
+    io.save_mesh(q, m)
+    np.testing.assert_allclose(io.load_mesh(q, units="mm").vertices, V / factor, rtol=1e-12)
+    # explicit units override the file's size
+    assert io.load_mesh(p, units="cm").to_mm == 10.0
+
+
+@pytest.mark.parametrize("size", [0.01, 2.0, 5000.0])
+def test_units_implausible_size(tmp_path, size):
+    V, F = face_like()
+    p = tmp_path / "m.ply"
+    io.save_mesh(p, (V / 160.0 * size, F))
+    with pytest.raises(UnitsError, match="cannot infer units"):
+        io.load_mesh(p)
+    assert io.load_mesh(p, units="mm").units == "mm"
+
+
+def test_infer_units_thresholds():
+    box = lambda s: np.array([[0, 0, 0], [s, s / 2, s / 3]], float)  # noqa: E731
+    assert [io.infer_units(box(s)) for s in (0.03, 0.2, 1.0, 3.0, 25.0, 59.9, 60.0, 200.0, 1000.0)] == \
+        ["m", "m", "m", "cm", "cm", "cm", "mm", "mm", "mm"]
+    for s in (0.029, 1.5, 1001.0):
+        with pytest.raises(UnitsError):
+            io.infer_units(box(s))
+
+
+def test_unknown_units(tmp_path):
+    V, F = face_like()
+    p = tmp_path / "m.ply"
+    io.save_mesh(p, (V, F))
+    with pytest.raises(UnitsError, match="unknown units"):
+        io.load_mesh(p, units="inch")
+    with pytest.raises(UnitsError, match="unknown units"):
+        io.save_mesh(tmp_path / "n.ply", (V, F), units="ft")
+    assert not (tmp_path / "n.ply").exists()
+
+
+# ----------------------------------------------------------------------------- bad files
+
+
+def one_line(e):
+    s = str(e.value)
+    assert "\n" not in s and len(s) < 300
+    return s
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(MeshFileError, match="no such file") as e:
+        io.load_mesh(tmp_path / "nope.ply")
+    one_line(e)
+
+
+def test_directory(tmp_path):
+    d = tmp_path / "dir.obj"
+    d.mkdir()
+    with pytest.raises(MeshFileError, match="directory"):
+        io.load_mesh(d)
+
+
+def test_unreadable_file(tmp_path, monkeypatch):
+    p = tmp_path / "m.ply"
+    io.save_mesh(p, face_like())
+
+    def denied(*a, **k):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(io, "open", denied, raising=False)  # root ignores chmod; simulate it
+    with pytest.raises(MeshFileError, match="cannot read: Permission denied"):
+        io.load_mesh(p)
+
+
+@pytest.mark.parametrize("name", ["scan.xyz", "scan", "scan.ply.gz"])
+def test_unknown_format(tmp_path, name):
+    p = tmp_path / name
+    p.write_text("1 2 3\n")
+    with pytest.raises(MeshFileError, match="unknown mesh format") as e:
+        io.load_mesh(p)
+    one_line(e)
+    with pytest.raises(MeshFileError, match="unknown mesh format"):
+        io.save_mesh(p, face_like())
+
+
+@pytest.mark.parametrize("ext", sorted(EXACT | FLOAT32))
+def test_zero_byte_file(tmp_path, ext):
+    p = tmp_path / f"e{ext}"
+    p.write_bytes(b"")
+    with pytest.raises(MeshFileError, match="empty"):
+        io.load_mesh(p)
+
+
+EMPTY_MESHES = {
+    "e.off": "OFF\n0 0 0\n",
+    "e.ply": "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+             "property float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n",
+    "e.wrl": "#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point [ ] } "
+             "coordIndex [ ] } }\n",
+    "f.wrl": "#VRML V2.0 utf8\nWorldInfo { title \"nothing\" }\n",
+    "e.obj": "# nothing\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(EMPTY_MESHES))
+def test_empty_mesh(tmp_path, name):
+    p = tmp_path / name
+    p.write_text(EMPTY_MESHES[name])
+    with pytest.raises(MeshError, match="empty") as e:
+        io.load_mesh(p)
+    one_line(e)
+
+
+POINT_CLOUDS = {
+    "pc.ply": "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+              "property float z\nend_header\n0 0 0\n100 0 0\n0 100 0\n",
+    "pc.obj": "v 0 0 0\nv 100 0 0\nv 0 100 0\n",
+    "pc.off": "OFF\n3 0 0\n0 0 0\n100 0 0\n0 100 0\n",
+    "pc.wrl": "#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point "
+              "[ 0 0 0, 100 0 0, 0 100 0 ] } } }\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(POINT_CLOUDS))
+def test_point_cloud(tmp_path, name):
+    p = tmp_path / name
+    p.write_text(POINT_CLOUDS[name])
+    with pytest.raises(MeshError, match="point cloud without faces"):
+        io.load_mesh(p)
+
+
+def tri_files(x):
+    """One triangle with the coordinate token x, in several formats."""
+    return {
+        "t.obj": f"v {x} 0 0\nv 100 0 0\nv 0 100 0\nf 1 2 3\n",
+        "t.ply": "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                 "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                 f"end_header\n{x} 0 0\n100 0 0\n0 100 0\n3 0 1 2\n",
+        "t.wrl": "#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point "
+                 f"[ {x} 0 0, 100 0 0, 0 100 0 ] }} coordIndex [ 0 1 2 -1 ] }} }}\n",
+        "t.off": f"OFF\n3 1 0\n{x} 0 0\n100 0 0\n0 100 0\n3 0 1 2\n",
+    }
+
+
+@pytest.mark.parametrize("token", ["nan", "inf", "-inf"])
+@pytest.mark.parametrize("name", ["t.obj", "t.ply", "t.wrl", "t.off"])
+def test_nan_inf(tmp_path, token, name):
+    p = tmp_path / name
+    p.write_text(tri_files(token)[name])
+    with pytest.raises(MeshError, match="NaN or infinite") as e:
+        io.load_mesh(p, units="mm")
+    one_line(e)
+
+
+OUT_OF_RANGE = {
+    "o.obj": "v 0 0 0\nv 100 0 0\nv 0 100 0\nf 1 2 9\n",
+    "o.ply": "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+             "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+             "end_header\n0 0 0\n100 0 0\n0 100 0\n3 0 1 7\n",
+    "o.wrl": "#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point "
+             "[ 0 0 0, 100 0 0, 0 100 0 ] } coordIndex [ 0 1 5 -1 ] } }\n",
+    "n.wrl": "#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point "
+             "[ 0 0 0, 100 0 0, 0 100 0 ] } coordIndex [ 0 -3 2 -1 ] } }\n",
+    "o.off": "OFF\n3 1 0\n0 0 0\n100 0 0\n0 100 0\n3 0 1 3\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(OUT_OF_RANGE))
+def test_out_of_range_indices(tmp_path, name):
+    p = tmp_path / name
+    p.write_text(OUT_OF_RANGE[name])
+    with pytest.raises(MeshError, match="out") as e:
+        io.load_mesh(p, units="mm")
+    one_line(e)
+
+
+def test_degenerate_duplicates_and_pieces(tmp_path):
+    # square (2 triangles) + a vertex duplicated + a zero-area triangle + a repeated-index triangle
+    # + the same triangle twice + a separate small triangle
+    p = tmp_path / "d.obj"
+    p.write_text("\n".join([
+        "v 0 0 0", "v 100 0 0", "v 100 100 0", "v 0 100 0",
+        "v 100 0 0",  # 5 = duplicate of 2
+        "v 50 0 0",  # 6 on the edge 1-2: (1, 6, 2) has zero area
+        "v 200 0 0", "v 210 0 0", "v 200 10 0",  # separate piece
+        "f 1 2 3", "f 1 3 4", "f 1 6 5", "f 1 1 3", "f 3 4 1", "f 7 8 9", "",
+    ]))
+    m = io.load_mesh(p, units="mm")
+    assert m.meta["n_duplicate_vertices_merged"] == 1
+    assert m.meta["n_degenerate_faces_dropped"] == 2
+    assert m.meta["n_duplicate_faces_dropped"] == 1
+    assert m.meta["n_components"] == 2
+    assert m.n_vertices == 8 and m.n_faces == 3
+    np.testing.assert_array_equal(m.vertices[:4], [[0, 0, 0], [100, 0, 0], [100, 100, 0], [0, 100, 0]])
+    big, old = m.largest_component()
+    assert big.n_faces == 2 and set(old.tolist()) == {0, 1, 2, 3}
+
+
+def test_all_faces_degenerate(tmp_path):
+    p = tmp_path / "z.obj"
+    p.write_text("v 0 0 0\nv 100 0 0\nv 200 0 0\nf 1 2 3\nf 1 1 2\n")
+    with pytest.raises(MeshError, match="all 2 faces are degenerate"):
+        io.load_mesh(p, units="mm")
+
+
+def test_merge_duplicates_can_be_turned_off(tmp_path):
+    V, F = face_like()
+    p = tmp_path / "s.stl"
+    io.save_mesh(p, (V, F))
+    m = io.load_mesh(p, merge_duplicates=False)
+    assert m.n_vertices == 3 * len(F) and m.meta["n_duplicate_vertices_merged"] == 0
+
+
+def truncations(tmp_path, ext):
+    V, F = face_like()
+    p = tmp_path / f"full{ext}"
+    io.save_mesh(p, (V, F))
+    data = p.read_bytes()
+    return data
+
+
+@pytest.mark.parametrize("ext", [".ply", ".stl", ".glb", ".obj", ".off", ".wrl"])
+@pytest.mark.parametrize("frac", [0.05, 0.5, 0.97])
+def test_truncated_files(tmp_path, ext, frac):
+    data = truncations(tmp_path, ext)
+    p = tmp_path / f"cut{ext}"
+    p.write_bytes(data[: int(len(data) * frac)])
+    if ext == ".obj":
+        # OBJ has no length or closing token: a cut between lines is a smaller valid mesh; a cut
+        # inside a face line leaves a short face, which must still be a typed error or a mesh.
+        try:
+            m = io.load_mesh(p, units="mm")
+            assert m.n_faces > 0
+        except (MeshError, MeshFileError) as e:
+            assert "\n" not in str(e)
+        return
+    with pytest.raises((MeshFileError, MeshError)) as e:
+        io.load_mesh(p, units="mm")
+    one_line(e)
+    if ext in (".ply", ".stl", ".glb", ".wrl"):
+        assert e.type is MeshFileError
+
+
+GARBAGE = [b"\x00\xff\x13garbage" * 50, b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2",
+           b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 1 2\n", b"glTF\x02\x00\x00\x00xx",
+           b"OFF\n3 1\n0 0 0\n1 1\n"]
+
+
+@pytest.mark.parametrize("ext", [".ply", ".stl", ".glb", ".off", ".obj", ".wrl"])
+@pytest.mark.parametrize("k", range(len(GARBAGE)))
+def test_garbage_never_leaks_a_trimesh_traceback(tmp_path, ext, k):
+    p = tmp_path / f"g{ext}"
+    p.write_bytes(GARBAGE[k])
+    with pytest.raises((MeshFileError, MeshError)) as e:
+        io.load_mesh(p, units="mm")
+    one_line(e)
+
+
+# ----------------------------------------------------------------------------- VRML
+
+
+BU3DFE_LIKE = """#VRML V2.0 utf8
+# BU-3DFE-like file: comments, texture and normal nodes, several shapes, quads
+WorldInfo { title "F0001_NE00WH_F3D" info [ "not # a comment" ] }
+Transform {
+  children [
+    Shape {
+      appearance Appearance { texture ImageTexture { url "F0001_NE00WH_F3D.bmp" } }
+      geometry DEF IFS IndexedFaceSet {
+        solid FALSE  creaseAngle 0.5
+        coord DEF C Coordinate { point [ 0 0 0, 100 0 0, 100 100 0, # a comment
+                                         0 100 0 ] }
+        texCoord TextureCoordinate { point [ 0 0, 1 0, 1 1, 0 1 ] }
+        texCoordIndex [ 0 1 2 3 -1 ]
+        normal Normal { vector [ 0 0 1 ] }
+        coordIndex [ 0, 1, 2, 3, -1 ]
+      }
+    }
+    Shape { geometry IndexedFaceSet {
+        coord Coordinate { point [ 200 0 0 210 0 0 210 10 0 200 10 0 205 15 0 ] }
+        coordIndex [ 0 1 2 3 4 -1 0 1 -1 ]  color Color { color [ 1 0 0 ] } } }
+  ]
+}
+Transform { translation 0 0 50 scale 2 2 2
+  children Shape { geometry IndexedFaceSet { ccw FALSE coord Coordinate { point [ 0 0 0 10 0 0 0 10 0 ] }
+                                            coordIndex [ 0 1 2 ] } } }
+ROUTE a.b TO c.d
+"""
+
+
+def test_wrl_bu3dfe_like(tmp_path):
+    p = tmp_path / "F0001_NE00WH_F3D.wrl"
+    p.write_text(BU3DFE_LIKE)
+    V, F = io.read_wrl(p)
+    assert len(V) == 4 + 5 + 3
+    # quad -> 2 fans, pentagon -> 3 fans, a 2-gon kept as degenerate, the last triangle flipped
+    np.testing.assert_array_equal(F[:2], [[0, 1, 2], [0, 2, 3]])
+    np.testing.assert_array_equal(F[2:5], [[4, 5, 6], [4, 6, 7], [4, 7, 8]])
+    np.testing.assert_array_equal(F[-1], [11, 10, 9])
+    np.testing.assert_allclose(V[9:], [[0, 0, 50], [20, 0, 50], [0, 20, 50]])  # transform applied
+    m = io.load_mesh(p, units="mm")
+    assert m.meta["n_degenerate_faces_dropped"] == 1
+    assert m.meta["n_components"] == 3 and m.n_faces == 6
+
+
+def test_wrl_def_use_and_rotation(tmp_path):
+    p = tmp_path / "r.wrl"
+    p.write_text("#VRML V2.0 utf8\n"
+                 "Shape { geometry IndexedFaceSet { coord DEF C Coordinate { point [ 0 0 0, 100 0 0, 0 100 0 ] }"
+                 " coordIndex [ 0 1 2 -1 ] } }\n"
+                 "Transform { rotation 0 0 1 1.5707963267948966 translation 0 0 10"
+                 " children [ Shape { geometry IndexedFaceSet { coord USE C coordIndex [ 0 1 2 -1 ] } } ] }\n")
+    V, F = io.read_wrl(p)
+    np.testing.assert_allclose(V[3:], [[0, 0, 10], [0, 100, 10], [-100, 0, 10]], atol=1e-12)
+    np.testing.assert_array_equal(F, [[0, 1, 2], [3, 4, 5]])
+
+
+@pytest.mark.parametrize("text,match", [
+    ("#VRML V1.0 ascii\nSeparator { }\n", "only VRML 2.0"),
+    ("Shape { }\n", "not a VRML file"),
+    ("#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point [ 0 0 x ] } } }\n",
+     "unexpected 'x' in point"),
+    ("#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point [ 0 0 1.2.3 ] } } }\n",
+     "'1.2.3' is not a number"),
+    ("#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point [ 0 0 0 1 ] } } }\n",
+     "not a multiple of 3"),
+    ("#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point [ 0 0 0 ] }"
+     " coordIndex [ 0 0.5 ] } }\n", "not an integer"),
+    ("#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord USE NOPE } }\n", "undefined name"),
+    ("#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point [ 0 0 0 ",
+     "end of file"),
+    ("#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { } } }\n", "line 2"),
+])
+def test_wrl_broken(tmp_path, text, match):
+    p = tmp_path / "b.wrl"
+    p.write_text(text)
+    with pytest.raises(MeshFileError, match=match) as e:
+        io.load_mesh(p, units="mm")
+    one_line(e)
+
+
+# ----------------------------------------------------------------------------- .bnd
+
+
+def test_bnd(tmp_path):
+    p = tmp_path / "F0001_NE00WH_F3D.bnd"
+    p.write_text("# landmarks\n8017  -55.0880 31.4430 58.2150\n\n 2  1e1 -2.5 3\n44.000000 0 0 0\n")
+    ids, pts = io.load_bnd(p)
+    np.testing.assert_array_equal(ids, [8017, 2, 44])
+    np.testing.assert_allclose(pts, [[-55.088, 31.443, 58.215], [10, -2.5, 3], [0, 0, 0]])
+    assert ids.dtype == np.int64 and pts.shape == (3, 3)
+    _, cm = io.load_bnd(p, to_mm=10.0)
+    np.testing.assert_allclose(cm, pts * 10)
+
+
+@pytest.mark.parametrize("text,match", [
+    ("1 2 3\n", "line 1: expected 'index x y z'"),
+    ("1 2 3 4\n5 a 1 2\n", "line 2: not numbers"),
+    ("1.5 0 0 0\n", "not a non-negative integer"),
+    ("-1 0 0 0\n", "not a non-negative integer"),
+    ("1 0 nan 0\n", "NaN or infinite"),
+    ("# only a comment\n\n", "no landmarks"),
+])
+def test_bnd_bad(tmp_path, text, match):
+    p = tmp_path / "x.bnd"
+    p.write_text(text)
+    with pytest.raises(MeshFileError, match=match) as e:
+        io.load_bnd(p)
+    one_line(e)
+
+
+def test_bnd_missing(tmp_path):
+    with pytest.raises(MeshFileError, match="no such file"):
+        io.load_bnd(tmp_path / "x.bnd")
+
+
+# ----------------------------------------------------------------------------- save errors
+
+
+def test_save_errors_leave_no_file(tmp_path):
+    V, F = face_like()
+    with pytest.raises(MeshFileError, match="does not exist"):
+        io.save_mesh(tmp_path / "no" / "m.ply", (V, F))
+    with pytest.raises(MeshError):
+        io.save_mesh(tmp_path / "m.ply", (V, F + 10_000))
+    with pytest.raises(MeshError, match="Mesh or a"):
+        io.save_mesh(tmp_path / "m.ply", V)
+    assert os.listdir(tmp_path) == []
+
+
+# ----------------------------------------------------------------------------- hypothesis
+
+
+@st.composite
+def random_meshes(draw):
+    n = draw(st.integers(3, 25))
+    coords = draw(st.lists(st.floats(-500, 500, allow_nan=False, allow_infinity=False, width=64),
+                           min_size=3 * n, max_size=3 * n))
+    V = np.array(coords).reshape(n, 3)
+    m = draw(st.integers(1, 30))
+    F = np.array([draw(st.lists(st.integers(0, n - 1), min_size=3, max_size=3, unique=True))
+                  for _ in range(m)])
+    assume(len(np.unique(V, axis=0)) == n)  # no duplicate vertices (they would be merged)
+    a, b, c = (V[F[:, k]] for k in range(3))
+    diag = np.linalg.norm(V.max(0) - V.min(0))
+    assume((np.linalg.norm(np.cross(b - a, c - a), axis=1) > 1e-9 * diag * diag).all())
+    assume(len(np.unique(np.sort(F, axis=1), axis=0)) == len(F))  # no repeated triangles
+    return V, F
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.filter_too_much,
+                                                                  HealthCheck.function_scoped_fixture])
+@given(mesh=random_meshes(), ext=st.sampled_from([".ply", ".obj", ".wrl"]))
+def test_hypothesis_round_trip(tmp_path, mesh, ext):
+    V, F = mesh
+    p = tmp_path / f"h{ext}"
+    io.save_mesh(p, (V, F))
+    m = io.load_mesh(p, units="mm")
+    # vertex order kept, coordinates exact (PLY float64, WRL %.17g) or to 1e-12 mm (OBJ 17 decimals)
+    np.testing.assert_allclose(m.vertices, V, rtol=0, atol=0 if ext != ".obj" else 1e-12)
+    np.testing.assert_array_equal(m.faces, F)
+    assert m.meta["n_degenerate_faces_dropped"] == 0 and m.meta["n_duplicate_vertices_merged"] == 0
