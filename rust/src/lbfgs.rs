@@ -187,10 +187,9 @@ where
                 p(&mut py);
                 1.0 / (rho_hist[k - 1] * dot(&y_hist[k - 1], &py))
             } else {
-                // First step: P g scaled to unit largest component, as without preconditioner.
-                py.copy_from_slice(&g);
-                p(&mut py);
-                1.0 / inf_norm(&py).max(1e-300)
+                // First step: P approximates the inverse Hessian, so the step P g is taken as is
+                // (a unit-length steepest-descent step needs several line-search trials).
+                1.0
             };
             p(&mut d);
             d.iter_mut().for_each(|v| *v *= gamma);
