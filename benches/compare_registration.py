@@ -55,8 +55,15 @@ def measure(template, verts, gt, mesh):
 
     reg = evaluate.region_errors(verts, gt["ibug68"], template)
     dense = evaluate.dense_error(verts, gt["dense"], template)
+    # The paper's MHD averages over every template vertex; the synthetic crop leaves part of the
+    # template unscanned (no data there), so also report it over the template vertices of faces
+    # that contain a scan vertex according to the dense ground truth ("scanned part").
+    face = template.ict_face_to_template_face[np.asarray(gt["dense"]["tri"]).astype(np.int64)]
+    covered = np.zeros(template.n_vertices, dtype=bool)
+    covered[np.asarray(template.faces)[np.unique(face[face >= 0])].ravel()] = True
     return {"regions": {k: float(np.nanmean(v)) for k, v in reg.items()}, "dense": float(np.mean(dense)),
-            "mhd": evaluate.mhd(verts, mesh.vertices)}
+            "mhd": evaluate.mhd(verts, mesh.vertices), "mhd_scanned": evaluate.mhd(verts[covered], mesh.vertices),
+            "scanned_fraction": float(covered.mean())}
 
 
 def main(argv=None) -> int:
@@ -122,12 +129,14 @@ def main(argv=None) -> int:
     print("| metric (mean over scans) | facecorr | nricp_amberg | ratio peer/ours |")
     print("|---|---|---|---|")
     lines = [(f"{reg} error [mm]", "regions", reg) for reg in IBUG68_REGIONS]
-    lines += [("dense error [mm]", "dense", None), ("MHD [mm]", "mhd", None), ("seconds per scan", "seconds", None)]
+    lines += [("dense error [mm]", "dense", None), ("MHD, all template vertices [mm]", "mhd", None),
+              ("MHD, scanned part of the template [mm]", "mhd_scanned", None), ("seconds per scan", "seconds", None)]
     for label, key, reg in lines:
         a = agg("ours", key, reg)
         b = agg("peer", key, reg) if has_peer else float("nan")
         print(f"| {label} | {a:.3f} | {b:.3f} | {b / a:.2f} |")
     print(f"| expression + shape seconds (ours) | {agg('ours', 'seconds_expr_shape'):.3f} | | |")
+    print(f"| scanned fraction of the template | {agg('ours', 'scanned_fraction'):.3f} | | |")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(rows, indent=1))
     print(f"per-scan rows: {args.out}")

@@ -20,7 +20,7 @@ from facecorr.registration.expression import box_qp, fit_expression
 from facecorr.template import load_template
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=15, deadline=None)
 @given(st.integers(0, 100_000))
 def test_box_qp_matches_scipy_lbfgsb(seed):
     rng = np.random.default_rng(seed)

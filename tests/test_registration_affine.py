@@ -15,7 +15,7 @@ def rotation(rng):
     return q * np.sign(np.linalg.det(q))
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=15, deadline=None)
 @given(st.integers(0, 10_000))
 def test_quasi_newton_equals_closed_form(seed):
     rng = np.random.default_rng(seed)
