@@ -637,7 +637,9 @@ mod tests {
         let anchors: Vec<(usize, [f64; 3])> = [10 * 21 + 10, 5 * 21 + 5, 5 * 21 + 15, 15 * 21 + 5, 15 * 21 + 15].iter().map(|&i| (i, roll(tv[i]))).collect();
         // Point-to-plane leaves tangential sliding free on the flat parts; five anchors (like the
         // landmarks the pipeline has) pin it. Without them the mean error is ~5 mm here.
-        let res = fit(&tv, &tf, &scan, &anchors, &ShapeFitOptions { w_landmark: 1.0, ..Default::default() });
+        // The paper-literal schedule: 12 levels, tolerances 1e-4 / 1e-3, memory 10.
+        let opts = ShapeFitOptions { w_landmark: 1.0, n_levels: 12, rel_tol: 1e-4, relax_tol: 1e-3, memory: 10, ..Default::default() };
+        let res = fit(&tv, &tf, &scan, &anchors, &opts);
         let (mut worst, mut mean, mut count, mut off_surface) = (0.0f64, 0.0, 0, 0.0f64);
         for (p0, p) in tv.iter().zip(&res.vertices) {
             if p0[0] < 6.0 || p0[0] > 54.0 || p0[1] < 6.0 || p0[1] > 54.0 {
