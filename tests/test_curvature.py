@@ -183,3 +183,11 @@ def test_isolated_vertex_is_nan():
     np.testing.assert_array_equal(d1[-1], 0)
     ids = C.umbilics(V, F, k1, k2)
     assert len(V) - 1 not in ids
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e300])
+def test_overflowing_scales_give_nan_not_a_crash(scale):
+    V, F = R.sphere(1.0, 2)
+    k1, k2, d1, _ = C.principal_curvatures(V * scale, F)  # squares under/overflow in the fit
+    assert np.isnan(k1).all() and np.isnan(k2).all() and (d1 == 0).all()
+    assert len(C.umbilics(V * scale, F)) == 0

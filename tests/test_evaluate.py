@@ -222,3 +222,28 @@ def test_landmark_errors_and_summary():
     assert rows["nose_tip"]["T10"] == pytest.approx(200 / 3) and rows["nose_tip"]["T30"] == 100.0
     assert rows["subnasal"]["n_scans"] == 1 and rows["subnasal"]["T10"] == 0.0
     assert evaluate.format_region_table(list(rows.values())).startswith("| Landmark |")
+
+
+def test_perfect_registration_of_a_synthetic_scan(tmp_path, t):
+    """Across the helpers' contracts: the model head of a synthetic scan, read at the template's
+    vertices and posed by the scan's ``pose``, has zero dense, region and landmark error."""
+    from facecorr.io import load_mesh
+    from facecorr.synth import generate, load_index, model_vertices
+
+    generate(tmp_path, preset="tiny", seed=3, workers=1, subjects=1, expressions=["HA"], levels=[4],
+             progress=False)
+    rec = load_index(tmp_path)[0]
+    gt = evaluate.load_ground_truth(rec["gt"])
+    head, _ = model_vertices(3, rec["subject"], rec["expression"], rec["level"])
+    pose = gt["dense"]["pose"]
+    perfect = head[t.ict_vertex] @ pose[:, :3].T + pose[:, 3]
+    dense, mask = evaluate.dense_error(perfect, gt["dense"], t, return_mask=True)
+    assert mask.mean() > 0.7 and dense.max() < 1e-3  # float32 storage only
+    for e in evaluate.region_errors(perfect, gt["ibug68"], t).values():
+        assert len(e) and e.max() < 1e-3
+    lm = evaluate.landmark_errors({n: perfect[i] for n, i in t.landmarks.items()}, gt["landmarks"])
+    assert max(lm.values()) < 1e-3
+    # the rest pose, rigidly placed, is millimetres off (the subject's identity and expression)
+    assert evaluate.dense_error(t.vertices @ pose[:, :3].T + pose[:, 3], gt["dense"], t).mean() > 2.0
+    scan = load_mesh(rec["scan"])
+    assert evaluate.mhd(perfect, scan.vertices) < 3.0

@@ -462,13 +462,117 @@ def random_meshes(draw):
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.filter_too_much,
                                                                   HealthCheck.function_scoped_fixture])
-@given(mesh=random_meshes(), ext=st.sampled_from([".ply", ".obj", ".wrl"]))
+@given(mesh=random_meshes(), ext=st.sampled_from([".ply", ".obj", ".wrl", ".off"]))
 def test_hypothesis_round_trip(tmp_path, mesh, ext):
     V, F = mesh
     p = tmp_path / f"h{ext}"
     io.save_mesh(p, (V, F))
     m = io.load_mesh(p, units="mm")
-    # vertex order kept, coordinates exact (PLY float64, WRL %.17g) or to 1e-12 mm (OBJ 17 decimals)
-    np.testing.assert_allclose(m.vertices, V, rtol=0, atol=0 if ext != ".obj" else 1e-12)
+    # vertex order kept, coordinates exact (PLY float64, OBJ repr, WRL %.17g)
+    np.testing.assert_array_equal(m.vertices, V)
     np.testing.assert_array_equal(m.faces, F)
     assert m.meta["n_degenerate_faces_dropped"] == 0 and m.meta["n_duplicate_vertices_merged"] == 0
+
+
+def test_saved_file_has_umask_permissions(tmp_path):
+    old = os.umask(0o022)
+    try:
+        io.save_mesh(tmp_path / "m.ply", face_like())
+    finally:
+        os.umask(old)
+    assert (tmp_path / "m.ply").stat().st_mode & 0o777 == 0o644
+    assert os.listdir(tmp_path) == ["m.ply"]
+
+
+@pytest.mark.parametrize("where,bad,match", [("point", "1.2.3", "'1.2.3' is not a number in point"),
+                                             ("coordIndex", "0.5", "'0.5' is not an integer in coordIndex"),
+                                             ("point", "nan 0 0", "NaN or infinite")])
+def test_wrl_big_arrays_fast_path_errors(tmp_path, where, bad, match):
+    """Long number lists take a vectorised path; its errors still name the value and the line."""
+    V, F = R.sphere(80.0, 3)  # 642 vertices: lists of > 1000 characters
+    p = tmp_path / "big.wrl"
+    io.save_mesh(p, (V, F))
+    text = p.read_text()
+    at = text.index(f"{where} [") + 3000
+    at = text.index(",", at) + 1
+    lines_before = text.count("\n", 0, at) + 1
+    p.write_text(text[:at] + f" {bad} " + text[at:])
+    with pytest.raises((MeshFileError, MeshError), match=match) as e:
+        io.load_mesh(p, units="mm")
+    if not bad.startswith("nan"):
+        assert f"line {lines_before}:" in str(e.value)
+    # and the intact file reads back exactly through the same path
+    p.write_text(text)
+    m = io.load_mesh(p, units="mm")
+    np.testing.assert_array_equal(m.vertices, V)
+
+
+def test_glb_scene_with_two_meshes_and_a_transform(tmp_path):
+    import trimesh
+
+    V, F = face_like()
+    scene = trimesh.Scene()
+    scene.add_geometry(trimesh.Trimesh(V, F, process=False), node_name="a", geom_name="a")
+    T = np.eye(4)
+    T[:3, 3] = [500.0, 0, 0]
+    small = trimesh.Trimesh(V[:3] * 0.1, [[0, 1, 2]], process=False)
+    scene.add_geometry(small, node_name="b", geom_name="b", transform=T)
+    p = tmp_path / "s.glb"
+    p.write_bytes(scene.export(file_type="glb"))
+    m = io.load_mesh(p, units="mm")
+    assert m.n_faces == len(F) + 1 and m.meta["n_components"] == 2
+    big, old = m.largest_component()
+    assert big.n_faces == len(F)
+    far = m.vertices[m.components == 1]
+    np.testing.assert_allclose(far, V[:3] * 0.1 + [500.0, 0, 0], atol=1e-4)  # transform applied
+
+
+def test_obj_with_texture_coordinates_keeps_vertex_order(tmp_path):
+    p = tmp_path / "t.obj"
+    p.write_text("v 0 0 0\nv 100 0 0\nv 100 100 0\nv 0 100 0\nv 50 50 30\n"
+                 "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvt 0.5 0.5\n"
+                 "f 1/1 2/2 5/5\nf 2/2 3/3 5/5\nf 3/3 4/4 5/5\nf 4/4 1/1 5/5\n")
+    m = io.load_mesh(p, units="mm")
+    np.testing.assert_array_equal(m.vertices, [[0, 0, 0], [100, 0, 0], [100, 100, 0], [0, 100, 0], [50, 50, 30]])
+    np.testing.assert_array_equal(m.faces, [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+
+
+def test_polygons_are_triangulated(tmp_path):
+    p = tmp_path / "q.ply"
+    p.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                 "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                 "end_header\n0 0 0\n100 0 0\n100 100 0\n0 100 0\n4 0 1 2 3\n")
+    m = io.load_mesh(p, units="mm")
+    assert m.n_faces == 2 and np.isclose(m.face_areas.sum(), 100 * 100)
+    q = tmp_path / "q.off"
+    q.write_text("OFF\n4 1 0\n0 0 0\n100 0 0\n100 100 0\n0 100 0\n4 0 1 2 3\n")
+    m = io.load_mesh(q, units="mm")
+    assert m.n_faces == 2 and np.isclose(m.face_areas.sum(), 100 * 100)
+
+
+@pytest.mark.parametrize("ext", sorted(EXACT))
+def test_tiny_and_huge_coordinates_round_trip_exactly(tmp_path, ext):
+    """Fixed-point writers would turn 1e-308 into 0 (a duplicate vertex); ours write repr digits."""
+    V = np.array([[0, 0, 0], [0, 100, 0], [0, 0, 100], [1.1125369292536007e-308, 0, 0],
+                  [123.456789012345678, -9.87654321e-12, 5e2]])
+    F = np.array([[0, 1, 2], [3, 1, 2], [4, 1, 2]])
+    p = tmp_path / f"x{ext}"
+    io.save_mesh(p, (V, F))
+    m = io.load_mesh(p, units="mm")
+    np.testing.assert_array_equal(m.vertices, V)
+    assert m.meta["n_duplicate_vertices_merged"] == 0
+
+
+def test_units_inferred_from_the_largest_piece(tmp_path):
+    """Debris 2 m away must not turn a face in mm into an implausible size."""
+    V, F = face_like()
+    V2 = np.vstack([V, [[2000, 0, 0], [2001, 0, 0], [2000, 1, 0]]])
+    F2 = np.vstack([F, [[len(V), len(V) + 1, len(V) + 2]]])
+    p = tmp_path / "debris.ply"
+    io.save_mesh(p, (V2, F2))
+    m = io.load_mesh(p)
+    assert m.units == "mm" and m.meta["n_components"] == 2
+    np.testing.assert_array_equal(m.components, R.components(m.vertices, m.faces))
+    q = tmp_path / "debris_m.ply"
+    io.save_mesh(q, (V2, F2), units="m")
+    assert io.load_mesh(q).units == "m"

@@ -10,7 +10,7 @@ from scipy.sparse.csgraph import connected_components
 
 from facecorr import names
 from facecorr.template import (
-    ICT_MODEL_PATH, MAX_BLENDSHAPE_COSINE, MIN_BLENDSHAPE_COSINE, REGION_NAMES, TEMPLATE_PATH, build_template,
+    BOUNDARY_LOOP_NAMES, ICT_MODEL_PATH, MAX_BLENDSHAPE_COSINE, MIN_BLENDSHAPE_COSINE, REGION_NAMES, TEMPLATE_PATH, build_template,
     load_template, template_from_arrays,
 )
 
@@ -51,16 +51,25 @@ def test_sizes_and_types(t):
     assert TEMPLATE_PATH.stat().st_size < 2_000_000  # small package data
 
 
-def test_one_piece_manifold_with_four_loops(t):
+def test_one_piece_manifold_with_six_loops(t):
     adj = _adjacency(t.n_vertices, t.faces)
     assert _n_components(adj, np.arange(t.n_vertices)) == 1
     e = np.sort(np.concatenate([t.faces[:, [0, 1]], t.faces[:, [1, 2]], t.faces[:, [2, 0]]]), axis=1)
     _, counts = np.unique(e, axis=0, return_counts=True)
     assert counts.max() == 2  # edge-manifold
-    assert set(t.boundary_loops) == {"outer", "right_eye", "left_eye", "mouth"}
+    assert tuple(t.boundary_loops) == BOUNDARY_LOOP_NAMES
+    x = t.vertices[:, 0]
+    for side, sign in (("right", -1), ("left", 1)):  # loops named by the right side
+        for what in ("eye", "nostril"):
+            assert sign * x[t.boundary_loops[f"{side}_{what}"]].mean() > 3
     assert sum(len(l) for l in t.boundary_loops.values()) == len(t.boundary) == (counts == 1).sum()
     for name, loop in t.boundary_loops.items():  # consecutive loop vertices share an edge
         assert adj[loop, np.roll(loop, -1)].min() > 0, name
+    # a clean outer crop line: no notches or spikes (turn between consecutive boundary edges)
+    p = t.vertices[t.boundary_loops["outer"]]
+    d1, d0 = np.roll(p, -1, axis=0) - p, p - np.roll(p, 1, axis=0)
+    cos_turn = (d1 * d0).sum(1) / np.linalg.norm(d1, axis=1) / np.linalg.norm(d0, axis=1)
+    assert cos_turn.min() > np.cos(np.radians(20))
     # the mouth slit is open between the lips: its loop reaches the inner lip corners (iBUG 60,
     # 64) and stays inside the outer ones (48, 54)
     mx = t.vertices[t.boundary_loops["mouth"], 0]
@@ -89,6 +98,9 @@ def test_ict_face_map_is_exact(t, ict):
 def test_landmarks_and_sides(t, ict):
     assert np.array_equal(t.ibug68[t.ibug68 >= 0], np.searchsorted(t.ict_vertex, ict["landmarks68"][t.ibug68 >= 0]))
     assert np.array_equal(t.landmark_ids, t.ibug68[list(names.LANDMARK_IBUG68)])
+    assert (t.ibug68[17:] >= 0).all()  # every evaluation point (17-59) and the inner lips
+    # every landmark and evaluation point has template around it (not on the crop line)
+    assert not np.isin(t.ibug68[17:48], t.boundary_loops["outer"]).any()
     assert list(t.landmarks) == list(names.LANDMARK_NAMES)
     x = t.vertices[:, 0]
     assert x[t.ibug68[36]] < 0 < x[t.ibug68[45]]  # subject's right at -x
@@ -231,3 +243,21 @@ def test_visible_points_depth_test():
     # seen from behind (yaw 180 deg) it is the other way round
     r = np.diag([-1.0, 1.0, -1.0])
     np.testing.assert_array_equal(visible_points(v, f, pts, r), [False, True, True, True])
+
+
+def test_template_is_what_scanners_see():
+    """Every template vertex outside the eye/mouth openings' rims faces some scanner view: the
+    nostril tubes are gone (a face cut from the ICT head without them would fail this)."""
+    from facecorr.render import view_rotation
+    from facecorr.template import visible_points
+
+    t = load_template()
+    nose = (np.abs(t.vertices[:, 0]) < 20) & (np.abs(t.vertices[:, 1]) < 15)
+    ids = np.flatnonzero(nose)
+    normals = t.mesh().vertex_normals
+    seen = np.zeros(len(ids), bool)
+    for yaw in (-60, -30, 0, 30, 60):
+        for pitch in (0, -15):
+            r = view_rotation(yaw, pitch)
+            seen |= ((normals[ids] @ r.T)[:, 2] > 0.17) & visible_points(t.vertices, t.faces, t.vertices[ids], r)
+    assert seen.mean() > 0.98, ids[~seen]

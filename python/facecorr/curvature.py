@@ -7,10 +7,11 @@ written in a tangent frame of the area-weighted vertex normal and
 graph at the vertex gives ``k1 >= k2`` and their directions. Positive curvature bends away from the
 normal (a sphere with outward normals has ``k1 = k2 = 1/R``).
 
-Fitting was chosen over Rusinkiewicz's per-face tensor averaging because it is several times more
-accurate on noisy ~1 mm scans (it averages ~20 points with a lever arm of two edges instead of
-differencing normals across single triangles; see BENCHMARKS.md, "Mesh kernels", measured by
-``benches/curvature_accuracy.py``), and its scale is an explicit knob (``radius`` in mm).
+Fitting was chosen over Rusinkiewicz's per-face tensor averaging by accuracy on noisy ~1 mm
+meshes (``benches/curvature_accuracy.py``, BENCHMARKS.md "Mesh kernels"): with 0.05 mm noise the
+median error on a sphere R = 27 mm is 0.0196 1/mm (Rusinkiewicz), 0.0158 (2-ring fit) and 0.0065
+(3 mm radius fit); it is better at equal support and its support is an explicit knob. Use
+``radius=3`` (mm) on dense noisy scans; the default 2 rings suits ~2-3 mm meshes (ICT model).
 
 Umbilics (the paper's sample points, Salazar et al. §3.2) are where ``k1 ≈ k2``. The rule:
 
@@ -24,10 +25,12 @@ Umbilics (the paper's sample points, Salazar et al. §3.2) are where ``k1 ≈ k2
 Defaults (``smooth_iters=0, ring=2, threshold=0.5, eps_rel=0.1, boundary_rings=0``) were chosen on
 the ICT neutral face (part "face", 9409 vertices, ~2.8 mm edges) by a small grid over
 smoothing {0, 1, 2}, ring {1, 2}, threshold {0.2, 0.35, 0.5}, boundary_rings {0, 1, 2}: they give
-~140 umbilics with 6 of the 8 method landmarks within 5 mm of one (both subalare are ~10 mm away
-for every setting tried); smoothing removes the umbilics at the eye corners on that coarse mesh.
-On noisy scans, ``smooth_iters=1..2`` trades coverage for fewer spurious umbilics. On a smooth
-ellipsoid the rule finds exactly its 4 umbilics.
+~140 umbilics with 6 of the 8 method landmarks within 5 mm of one (140 random vertices: 4.35; both
+subalare are ~10 mm away for every setting tried); smoothing removes the umbilics at the eye
+corners on that coarse mesh. On noisy synthetic scans (~1.2 mm) the umbilics are many (~5 % of the
+vertices) and no closer to the landmarks than as many random vertices; ``smooth_iters=1..2`` or a
+larger ``radius`` makes them fewer but does not make them better (``benches/umbilic_coverage.py``,
+BENCHMARKS.md). On a smooth ellipsoid the rule finds exactly its 4 umbilics.
 """
 
 from __future__ import annotations

@@ -18,9 +18,9 @@ Validation on load (:func:`load_mesh`), in this order, with the counts in ``mesh
 3. degenerate faces (a repeated vertex, or area <= 1e-12 x bbox-diagonal²) are dropped
    (``meta["n_degenerate_faces_dropped"]``); if none is left -> MeshError; then repeated
    triangles (same three vertices) are dropped (``meta["n_duplicate_faces_dropped"]``);
-4. units (see :func:`infer_units`) -> ``mesh.to_mm``, ``mesh.units``;
-5. connected pieces are kept; ``meta["n_components"]`` counts the pieces with faces (the largest
-   by area, ``mesh.largest_component()``, is the face unless told otherwise).
+4. connected pieces are kept; ``meta["n_components"]`` counts the pieces with faces (the largest
+   by area, ``mesh.largest_component()``, is the face unless told otherwise);
+5. units (see :func:`infer_units`, applied to the largest piece) -> ``mesh.to_mm``, ``mesh.units``.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import os
 import re
-import tempfile
+import secrets
 import warnings
 from pathlib import Path
 
@@ -292,13 +292,16 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
     else:
         V, F = _read_trimesh(path, fmt)
     V, F, meta = _clean(V, F, str(path), merge_duplicates)
+    # Components in the file's units (labels do not depend on the scale).
+    labels = Mesh(V, F, source=str(path)).components
+    meta["n_components"] = int(len(np.unique(labels[F[:, 0]])))
     inferred = units == "auto"
-    if inferred:
-        units = infer_units(V)
+    if inferred:  # by the largest piece, so that far-away debris does not change the size
+        units = infer_units(V[labels == 0])
         factor = UNIT_TO_MM[units]
     meta.update(format=fmt, units_inferred=inferred)
     mesh = Mesh(V * factor, F, to_mm=factor, units=units, source=str(path), meta=meta)
-    mesh.meta["n_components"] = int(len(np.unique(mesh.components[mesh.faces[:, 0]])))
+    mesh.__dict__["components"] = labels  # seed the cached property
     return mesh
 
 
@@ -306,19 +309,20 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    """Write to a temporary file beside ``path`` and rename: no partial output on failure."""
+    """Write to a temporary file beside ``path`` and rename: no partial output on failure.
+    (Created with ``open(..., "xb")`` so the file gets the usual umask permissions.)"""
     if not path.parent.exists():
         raise MeshFileError(f"{path}: directory {path.parent} does not exist")
+    tmp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    except OSError as e:
-        raise MeshFileError(f"{path}: cannot write: {e.strerror or e}") from None
-    try:
-        with os.fdopen(fd, "wb") as fh:
+        with open(tmp, "xb") as fh:
             fh.write(data)
         os.replace(tmp, path)
     except OSError as e:
-        os.unlink(tmp)
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
         raise MeshFileError(f"{path}: cannot write: {e.strerror or e}") from None
 
 
@@ -333,9 +337,25 @@ def _ply_bytes(V: np.ndarray, F: np.ndarray) -> bytes:
     return header.encode("ascii") + np.ascontiguousarray(V, "<f8").tobytes() + faces.tobytes()
 
 
+def _xyz_lines(V: np.ndarray, prefix: str = "") -> str:
+    return "".join(f"{prefix}{x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+
+
+def _obj_text(V: np.ndarray, F: np.ndarray) -> str:
+    """Wavefront OBJ, coordinates written exactly (shortest round-trip repr), 1-based faces."""
+    faces = "".join(f"f {a} {b} {c}\n" for a, b, c in (F + 1).tolist())
+    return "# written by facecorr\n" + _xyz_lines(V, "v ") + faces
+
+
+def _off_text(V: np.ndarray, F: np.ndarray) -> str:
+    """OFF, coordinates written exactly (shortest round-trip repr)."""
+    faces = "".join(f"3 {a} {b} {c}\n" for a, b, c in F.tolist())
+    return f"OFF\n{len(V)} {len(F)} 0\n" + _xyz_lines(V) + faces
+
+
 def save_mesh(path, mesh_or_VF, units: str | None = None) -> None:
-    """Write a mesh: PLY (binary, float64) and WRL (VRML 2.0, %.17g) by our writers, OBJ and OFF
-    (17 digits), STL and GLB (float32 by format) through trimesh.
+    """Write a mesh: PLY (binary, float64), OBJ, OFF and WRL (text, exact round-trip digits) by our
+    writers; STL and GLB (float32 by format) through trimesh.
 
     Parameters
     ----------
@@ -367,18 +387,16 @@ def save_mesh(path, mesh_or_VF, units: str | None = None) -> None:
         data = write_wrl_text(V, F).encode("ascii")
     elif fmt == "ply":
         data = _ply_bytes(V, F)
+    elif fmt == "obj":
+        data = _obj_text(V, F).encode("ascii")
+    elif fmt == "off":
+        data = _off_text(V, F).encode("ascii")
     else:
         import trimesh
 
         tm = trimesh.Trimesh(vertices=V, faces=F, process=False, validate=False)
         try:
-            if fmt == "obj":
-                data = trimesh.exchange.obj.export_obj(tm, include_normals=False, include_color=False,
-                                                       include_texture=False, digits=17)
-            elif fmt == "off":
-                data = trimesh.exchange.off.export_off(tm, digits=17)
-            else:
-                data = tm.export(file_type=fmt)
+            data = tm.export(file_type=fmt)
         except Exception as e:  # noqa: BLE001
             raise MeshFileError(f"{path}: cannot export {fmt.upper()} ({_one_line(e)})") from None
         if isinstance(data, str):
@@ -391,6 +409,8 @@ def save_mesh(path, mesh_or_VF, units: str | None = None) -> None:
 _TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|#[^\n]*|[{}\[\]]|[^\s{}\[\],"#]+|,')
 _SCALAR_WORDS = {"TRUE", "FALSE", "NULL"}
 _NONFINITE = {"nan", "inf", "infinity"}  # not VRML, but printf writes them; reported as NaN/inf
+# A bracketed list without nodes, strings or comments (the big point / coordIndex arrays).
+_RAW_BLOCK = re.compile(r"\[([^\[\]{}\"#]*)\]")
 
 
 class _Node:
@@ -412,12 +432,28 @@ class _WrlParser:
         self.text = text
         self.name = name
         toks, pos = [], []
-        for m in _TOKEN.finditer(text):
-            t = m.group()
-            if t[0] == "#" or t == ",":
-                continue
-            toks.append(t)
-            pos.append(m.start())
+        self.raw: list[tuple[int, int]] = []  # (start, end) of long plain bracketed number lists
+
+        def tokenize(a: int, b: int) -> None:
+            for m in _TOKEN.finditer(text, a, b):
+                t = m.group()
+                if t[0] == "#" or t == ",":
+                    continue
+                toks.append(t)
+                pos.append(m.start())
+
+        done = 0
+        for m in _RAW_BLOCK.finditer(text):
+            a, b = m.span(1)
+            line_start = text.rfind("\n", 0, m.start()) + 1
+            if b - a < 1000 or "#" in text[line_start:m.start()]:
+                continue  # short, or possibly inside a comment: the token path handles it
+            tokenize(done, m.start())
+            toks += ["[", f"\x00{len(self.raw)}", "]"]
+            pos += [m.start(), a, b]
+            self.raw.append((a, b))
+            done = m.end()
+        tokenize(done, len(text))
         self.toks, self.pos, self.i = toks, pos, 0
         self.defs: dict[str, _Node] = {}
 
@@ -519,6 +555,11 @@ class _WrlParser:
         t = self.peek()
         if t == "[":
             self.i += 1
+            raw = self.peek()
+            if raw is not None and raw[0] == "\x00":
+                self.i += 2  # the block and its "]"
+                a, b = self.raw[int(raw[1:])]
+                return _RawList(self.text, a, b, self)
             if self.starts_node() or self.peek() == "]":
                 items = []
                 while self.peek() != "]":
@@ -550,6 +591,37 @@ class _WrlParser:
         if self.i == start:
             raise self.error(f"missing value for {field}")
         return _ScalarList(self.toks[start:self.i], start, self)
+
+
+class _RawList:
+    """A long bracketed list of plain numbers, kept as text and converted in one go."""
+
+    __slots__ = ("text", "a", "b", "parser")
+
+    def __init__(self, text, a, b, parser):
+        self.text, self.a, self.b, self.parser = text, a, b, parser
+
+    @property
+    def toks(self) -> list[str]:
+        return self.text[self.a:self.b].replace(",", " ").split()
+
+    def _convert(self, dtype, field: str, what: str) -> np.ndarray:
+        toks = self.toks
+        try:
+            return np.array(toks, dtype=dtype)
+        except (ValueError, OverflowError):
+            check = _is_float if dtype is np.float64 else _is_int
+            bad = next(t for t in toks if not check(t))
+            at = self.text.find(bad, self.a, self.b)
+            line = self.text.count("\n", 0, at) + 1
+            raise MeshFileError(f"{self.parser.name}: broken VRML at line {line}: {bad!r} is not "
+                                f"{what} in {field}") from None
+
+    def floats(self, field: str) -> np.ndarray:
+        return self._convert(np.float64, field, "a number")
+
+    def ints(self, field: str) -> np.ndarray:
+        return self._convert(np.int64, field, "an integer")
 
 
 class _ScalarList:
@@ -686,14 +758,14 @@ def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
         if not isinstance(coord, _Node):
             continue
         pts = coord.fields.get("point")
-        pts = pts.floats("point") if isinstance(pts, _ScalarList) else np.zeros(0)
+        pts = pts.floats("point") if isinstance(pts, (_ScalarList, _RawList)) else np.zeros(0)
         if len(pts) % 3:
             raise MeshFileError(f"{path}: Coordinate.point has {len(pts)} numbers, not a multiple of 3")
         V = pts.reshape(-1, 3)
         if not np.allclose(M, np.eye(4)):
             V = V @ M[:3, :3].T + M[:3, 3]
         ci = node.fields.get("coordIndex")
-        idx = ci.ints("coordIndex") if isinstance(ci, _ScalarList) else np.zeros(0, np.int64)
+        idx = ci.ints("coordIndex") if isinstance(ci, (_ScalarList, _RawList)) else np.zeros(0, np.int64)
         F = _fan_triangulate(idx)
         ccw = node.fields.get("ccw")
         if isinstance(ccw, _ScalarList) and ccw.toks == ["FALSE"]:

@@ -162,6 +162,13 @@ class Mesh:
         """
         return self.submesh(self.components == 0)
 
+    @cached_property
+    def kdtree(self):
+        """:class:`facecorr.spatial.KDTree` over the vertices (built on first use)."""
+        from .spatial import KDTree
+
+        return KDTree(self.vertices)
+
     @property
     def diagonal(self) -> float:
         """Length of the bounding-box diagonal, mm."""

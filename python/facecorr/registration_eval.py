@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .names import IBUG68_REGIONS, LANDMARK_NAMES
+from .names import LANDMARK_NAMES
 
 
 def select_eval_records(records, split="test", level=4):
@@ -50,26 +50,6 @@ def _eval_one(job):
         return {"scan": rec["scan"], "ok": False, "error": f"{type(e).__name__}: {e}"}
 
 
-def region_table(rows) -> list[dict]:
-    """Table 3 rows: per region mean ± std over all points and scans, max, T10/T20/T30 (%) where a
-    scan counts under a threshold only when every point of the region is under it."""
-    out = []
-    for region in IBUG68_REGIONS:
-        per_scan = [np.asarray(r["regions"][region], float) for r in rows if region in r["regions"]]
-        per_scan = [e[np.isfinite(e)] for e in per_scan]
-        per_scan = [e for e in per_scan if len(e)]
-        if not per_scan:
-            continue
-        allp = np.concatenate(per_scan)
-        worst = np.array([e.max() for e in per_scan])
-        out.append({
-            "region": region, "mean": allp.mean(), "std": allp.std(), "max": allp.max(),
-            "T10": 100 * (worst < 10).mean(), "T20": 100 * (worst < 20).mean(), "T30": 100 * (worst < 30).mean(),
-            "n_scans": len(per_scan),
-        })
-    return out
-
-
 def write_reports(rows, out_dir: Path) -> str:
     """Write the Markdown/CSV tables, the per-scan JSON and the cumulative PNG; return the Markdown."""
     import matplotlib
@@ -79,12 +59,11 @@ def write_reports(rows, out_dir: Path) -> str:
 
     from .fileio import atomic_path, write_json
 
+    from .evaluate import format_region_table, summarize_regions
+
     ok = [r for r in rows if r["ok"]]
-    table = region_table(ok)
-    lines = ["| Region | Mean ± Std [mm] | Max [mm] | T10 [%] | T20 [%] | T30 [%] |", "|---|---|---|---|---|---|"]
-    for t in table:
-        lines.append(f"| {t['region']} | {t['mean']:.2f} ± {t['std']:.2f} | {t['max']:.2f} | "
-                     f"{t['T10']:.1f} | {t['T20']:.1f} | {t['T30']:.1f} |")
+    table = summarize_regions([{k: np.asarray(v, float) for k, v in r["regions"].items()} for r in ok])
+    lines = [format_region_table(table).rstrip("\n")]
     mhd = np.array([r["mhd"] for r in ok]) if ok else np.array([np.nan])
     dense = np.array([r["dense_mean"] for r in ok]) if ok else np.array([np.nan])
     secs = np.array([r["seconds"] for r in ok]) if ok else np.array([np.nan])

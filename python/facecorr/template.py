@@ -10,15 +10,32 @@ Frame and units
     model frame means a scan generated from the model and the template share coordinates up to
     the scan's rigid pose.
 
-Rest pose A0 (6706 vertices, 13120 triangles)
-    The ICT generic neutral restricted to the model's ``narrow_face`` area (forehead to chin,
-    cheek to cheek; no ears, neck, mouth socket, teeth, tongue or eyeballs) -- the extent of a
-    BU-3DFE cropped face. Faces are the ICT triangles with all three corners inside the area, in
-    ICT order and with ICT corner order, so a point given by (ICT triangle, barycentric coords) is
-    the same point on the template (:attr:`Template.ict_face_to_template_face`): dense ground truth
-    stays exact. The cut is one connected, edge-manifold piece with four boundary loops: the
-    outer crop line, the two eye openings and the mouth slit (open between the lips, as in the
-    model). No decimation: 6706 vertices is already inside the 5-10k budget.
+Rest pose A0 (5325 vertices, 10287 triangles)
+    The ICT generic neutral over the model's ``narrow_face`` area (forehead to chin, cheek to
+    cheek; no ears, neck, mouth socket, teeth, tongue or eyeballs) minus its PEEL_RINGS = 8
+    outermost vertex rings and minus the nostril tubes -- the extent of a BU-3DFE cropped face.
+
+    - The crop: the narrow face's edge loops are concentric (138 vertices each), so peeling
+      whole rings keeps a smooth outer boundary (largest turn between consecutive boundary
+      edges: 6 degrees). Why peel: on 14 synthetic BU-3DFE-like scans (``facecorr.synth``, tiny
+      preset, seed 1, level 4, a perfect registration) the share of scans with data within 2 mm
+      of a vertex averages 0.03-0.56 on rings 0-7 (forehead top, temples, under the chin:
+      outside the scans' crop), 0.65 on ring 8 and >= 0.8 from ring 10 on; a template reaching
+      far beyond the scans only inflates MHD and leaves vertices without data. The eyebrow
+      points (iBUG 17-26, ring 12) stay 4 rings inside; the upper jaw line (iBUG 0-4, 12-16) is
+      cut (``ibug68`` = -1 there).
+    - The nostril tubes (2 x 138 vertices) go deep into the nose where no scanner looks: a
+      vertex near the nose is dropped when no horizontal-ish view (yaw -60..60, pitch 0 / 15 deg
+      from below) sees it unoccluded and at a non-grazing angle (:func:`_nostril_interiors`).
+      Their cut edges are two small boundary loops inside the nostrils, out of sight.
+
+    Faces are the ICT triangles with all three corners kept, in ICT order and with ICT corner
+    order, so a point given by (ICT triangle, barycentric coords) is the same point on the
+    template (:attr:`Template.ict_face_to_template_face`): dense ground truth stays exact. The
+    cut is one connected, edge-manifold piece with six boundary loops (BOUNDARY_LOOP_NAMES): the
+    outer crop line, the two eye openings, the mouth slit (open between the lips, as in the
+    model) and the two nostrils. No decimation: 5325 vertices is already inside the 5-10k
+    budget.
 
 Blendshapes A_k (K = 14 displacement fields, mm, weights meant in [0, 1])
     Chosen from the 53 ICT (ARKit-named) expression shapes, mostly jaw, lips and mouth corners
@@ -31,19 +48,19 @@ Blendshapes A_k (K = 14 displacement fields, mm, weights meant in [0, 1])
 
     Candidates dropped or merged (cosine to the kept shape, over the template):
 
-    - mouthLowerDown_L+R: 0.83 with jawOpen (the lower lip goes down with the jaw) -> dropped.
-    - mouthClose -0.83 and mouthPress_L+R -0.82 with jawOpen, 0.84 and 0.83 with mouthShrugLower
+    - mouthLowerDown_L+R: 0.85 with jawOpen (the lower lip goes down with the jaw) -> dropped.
+    - mouthClose -0.86 and mouthPress_L+R -0.84 with jawOpen, 0.85 and 0.84 with mouthShrugLower
       (they close the lips, mostly what the chin raiser does) -> dropped.
     - mouthShrugLower (chin raiser, FACS AU17, in sadness, anger, disgust) is kept although its
-      cosine with jawOpen is -0.91: it is the only way to move the chin and lower lip *up*
-      (weights are >= 0), and without it 72% of its displacement over mouth + chin is left
-      unexplained by the other shapes (benches/template_coverage.py). The pair's Gram matrix
-      has eigenvalues 1.91 and 0.09: jointly fittable, not degenerate.
+      cosine with jawOpen is -0.92: it is the only way to move the chin and lower lip *up*
+      (weights are >= 0), and without it 73% of its displacement over mouth + chin is left
+      unexplained by the other 13 shapes (bounded least squares). The pair's Gram matrix has
+      eigenvalues 1.92 and 0.08: jointly fittable, not degenerate.
     - mouthFunnel: 0.88 with mouthPucker (the same lip protrusion) -> merged, A = (pucker +
-      funnel) / 2, cosine 0.97 to each of the two.
-    - mouthDimple_L/_R: 0.78 with mouthSmile, same side -> dropped.
-    - noseSneer_L+R 0.88 and mouthShrugUpper 0.74 with mouthUpperUp -> dropped.
-    - browInnerUp/browOuterUp of one side: 0.648 -> kept only as left+right sums (0.62).
+      funnel) / 2, cosine 0.97 / 0.97 to the two.
+    - mouthDimple_L/_R: 0.79 with mouthSmile, same side -> dropped.
+    - noseSneer_L+R 0.89 and mouthShrugUpper 0.75 with mouthUpperUp -> dropped.
+    - browInnerUp/browOuterUp of one side: 0.654 -> kept only as left+right sums (0.63).
 
     Kept, with each one's largest and smallest cosine to the other kept fields
     (``python -m facecorr.template --build`` stores the matrix as ``blendshape_cosine``):
@@ -51,20 +68,20 @@ Blendshapes A_k (K = 14 displacement fields, mm, weights meant in [0, 1])
     ==============  ==========================  ==========================
     blendshape      max cosine (with)           min cosine (with)
     ==============  ==========================  ==========================
-    jawOpen         +0.20 (mouthFrown_L/_R)     -0.91 (mouthShrugLower)
-    mouthSmile_L    +0.57 (mouthStretch_L)      -0.38 (mouthPucker)
-    mouthSmile_R    +0.57 (mouthStretch_R)      -0.38 (mouthPucker)
-    mouthFrown_L    +0.57 (mouthStretch_L)      -0.41 (mouthUpperUp)
-    mouthFrown_R    +0.57 (mouthStretch_R)      -0.41 (mouthUpperUp)
-    mouthStretch_L  +0.57 (mouthFrown_L)        -0.57 (mouthPucker)
-    mouthStretch_R  +0.57 (mouthFrown_R)        -0.57 (mouthPucker)
-    mouthPucker     +0.26 (mouthShrugLower)     -0.57 (mouthStretch_L/_R)
+    jawOpen         +0.21 (mouthFrown_L/_R)     -0.92 (mouthShrugLower)
+    mouthSmile_L    +0.57 (mouthStretch_L)      -0.39 (mouthPucker)
+    mouthSmile_R    +0.57 (mouthStretch_R)      -0.39 (mouthPucker)
+    mouthFrown_L    +0.58 (mouthStretch_L)      -0.41 (mouthUpperUp)
+    mouthFrown_R    +0.58 (mouthStretch_R)      -0.41 (mouthUpperUp)
+    mouthStretch_L  +0.58 (mouthFrown_L)        -0.57 (mouthPucker)
+    mouthStretch_R  +0.58 (mouthFrown_R)        -0.57 (mouthPucker)
+    mouthPucker     +0.25 (mouthShrugLower)     -0.57 (mouthStretch_L/_R)
     mouthUpperUp    +0.40 (mouthSmile_L/_R)     -0.41 (mouthFrown_L/_R)
-    mouthShrugLower +0.26 (mouthPucker)         -0.91 (jawOpen)
-    browInnerUp     +0.62 (browOuterUp)         -0.29 (browDown_L/_R)
-    browOuterUp     +0.62 (browInnerUp)         -0.50 (browDown_L/_R)
-    browDown_L      +0.02 (browDown_R)          -0.50 (browOuterUp)
-    browDown_R      +0.02 (browDown_L)          -0.50 (browOuterUp)
+    mouthShrugLower +0.25 (mouthPucker)         -0.92 (jawOpen)
+    browInnerUp     +0.63 (browOuterUp)         -0.32 (browDown_L/_R)
+    browOuterUp     +0.63 (browInnerUp)         -0.51 (browDown_L/_R)
+    browDown_L      +0.02 (browDown_R)          -0.51 (browOuterUp)
+    browDown_R      +0.02 (browDown_L)          -0.51 (browOuterUp)
     ==============  ==========================  ==========================
 
     Recipes: mouthPucker = (ICT mouthPucker + mouthFunnel) / 2; mouthUpperUp, browInnerUp and
@@ -86,14 +103,14 @@ Regions (paper Fig. 7: upper face, chin, mouth), per vertex, ``REGION_NAMES`` or
         within 60 deg of +z. The last condition leaves out the under-chin surface, which a
         frontal scanner does not see: the paper's expression fit waits until 80% of the chin
         vertices have a valid nearest neighbour on the scan, which an unseen half of the region
-        would never allow (with it, about half the jaw-moving vertices below the lip face down).
+        would never allow.
     upper
         the rest (forehead, eyes, nose, cheeks, and the under-chin surface).
     Each region is one edge-connected piece (small islands are given to the neighbouring region).
 
 Landmarks
-    ``ibug68``: the ICT ``landmarks68`` vertices mapped to template ids (-1 where outside; none
-    is, the jaw line 0-16 included). The 8 landmarks of the method are iBUG 36, 39, 42, 45, 31,
+    ``ibug68``: the ICT ``landmarks68`` vertices mapped to template ids (-1 where outside: the
+    upper jaw line 0-4 and 12-16; every evaluation point 17-59 is inside). The 8 landmarks of the method are iBUG 36, 39, 42, 45, 31,
     35, 30, 33 (``facecorr.names.LANDMARK_IBUG68``).
 
 Landmark graph Pa (the paper's Fig. 2 structure; its picture is not in the text we have)
@@ -161,6 +178,12 @@ GRAPH_EDGES = (
     (6, 7),                          # tip - subnasal
 )
 
+#: The template's boundary loops (``Template.boundary_loops`` keys).
+BOUNDARY_LOOP_NAMES = ("outer", "right_eye", "left_eye", "mouth", "right_nostril", "left_nostril")
+
+# The crop: vertex rings peeled off the narrow face's outer boundary (module docstring).
+PEEL_RINGS = 8
+
 # Region geometry (mm), see the module docstring.
 MOUTH_MARGIN_X = 10.0
 MOUTH_MARGIN_Y = 7.0
@@ -184,8 +207,8 @@ class Template:
     blendshape_cosine : (K, K) float64 -- cosine similarity of the flattened A_k.
     regions : (N,) int8 -- index into REGION_NAMES.
     boundary : (B,) int64 -- vertex ids on any boundary loop, sorted.
-    boundary_loops : dict name -> (n,) int64 -- each loop in order: "outer", "right_eye",
-        "left_eye", "mouth".
+    boundary_loops : dict name -> (n,) int64 -- each loop in order, BOUNDARY_LOOP_NAMES: "outer",
+        "right_eye", "left_eye", "mouth", "right_nostril", "left_nostril".
     landmark_ids : (8,) int64 -- vertex ids of the LANDMARK_NAMES landmarks, in that order.
     landmarks : dict name -> vertex id.
     ibug68 : (68,) int64 -- vertex id of each iBUG-68 point, -1 where outside the template.
@@ -323,8 +346,9 @@ def _boundary_loops(faces: np.ndarray, vertices: np.ndarray, ibug68: np.ndarray)
             seen.add(nxt)
             prev, cur = cur, nxt
         loops.append(np.array(loop, dtype=np.int64))
-    if len(loops) != 4:
-        raise RuntimeError(f"expected 4 boundary loops (outer, 2 eyes, mouth), found {len(loops)}")
+    if len(loops) != len(BOUNDARY_LOOP_NAMES):
+        raise RuntimeError(f"expected {len(BOUNDARY_LOOP_NAMES)} boundary loops {BOUNDARY_LOOP_NAMES}, "
+                           f"found {len(loops)}")
     # Name each loop by the nearest landmark group to its centroid; the outer one is the longest.
     lengths = [np.linalg.norm(np.diff(vertices[np.r_[l, l[:1]]], axis=0), axis=1).sum() for l in loops]
     outer = int(np.argmax(lengths))
@@ -332,6 +356,8 @@ def _boundary_loops(faces: np.ndarray, vertices: np.ndarray, ibug68: np.ndarray)
         "right_eye": vertices[ibug68[36:42]].mean(0),
         "left_eye": vertices[ibug68[42:48]].mean(0),
         "mouth": vertices[ibug68[60:68]].mean(0),
+        "right_nostril": vertices[ibug68[[31, 33]]].mean(0),
+        "left_nostril": vertices[ibug68[[33, 35]]].mean(0),
     }
     named = {"outer": loops[outer]}
     for name, p in anchors.items():
@@ -394,6 +420,110 @@ def _regions(vertices: np.ndarray, faces: np.ndarray, adj: sp.csr_matrix, ibug68
     return labels
 
 
+def _rings_from_outer_boundary(faces: np.ndarray, n: int) -> np.ndarray:
+    """(n,) edge hops from each vertex to the longest boundary loop of ``faces`` (inf if apart)."""
+    from scipy.sparse.csgraph import dijkstra
+
+    edges, counts = _edges(faces)
+    bedges = edges[counts == 1]
+    _, loop_label = connected_components(_adjacency(n, bedges), directed=False)
+    bverts = np.unique(bedges)
+    labels, sizes = np.unique(loop_label[bverts], return_counts=True)
+    outer = bverts[loop_label[bverts] == labels[np.argmax(sizes)]]
+    return dijkstra(_adjacency(n, edges), indices=outer, unweighted=True, min_only=True)
+
+
+def visible_points(vertices, faces, points, rotation, tol=0.5) -> np.ndarray:
+    """(P,) bool: whether each point (on or near the surface) is unoccluded in the view.
+
+    A point is hidden when a triangle covering its projection lies more than ``tol`` mm nearer
+    the viewer (a depth test, not a normal test: in a side view symmetric points project onto
+    each other). ``rotation`` (3, 3) takes model to view coordinates, the viewer on +z (as in
+    :func:`facecorr.render.draw_mesh`); the projection is orthographic.
+    """
+    v = np.asarray(vertices, float) @ np.asarray(rotation).T
+    p = np.asarray(points, float) @ np.asarray(rotation).T
+    tri = v[np.asarray(faces)]
+    lo, hi = tri[:, :, :2].min(axis=1), tri[:, :, :2].max(axis=1)
+    out = np.ones(len(p), bool)
+    for i, q in enumerate(p):
+        cand = np.flatnonzero((lo[:, 0] <= q[0]) & (q[0] <= hi[:, 0]) & (lo[:, 1] <= q[1]) & (q[1] <= hi[:, 1]))
+        if len(cand) == 0:
+            continue
+        a, b, c = tri[cand, 0], tri[cand, 1], tri[cand, 2]
+        e1, e2, w = (b - a)[:, :2], (c - a)[:, :2], q[:2] - a[:, :2]
+        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        ok = np.abs(det) > 1e-12
+        det = np.where(ok, det, 1.0)
+        s_ = (w[:, 0] * e2[:, 1] - w[:, 1] * e2[:, 0]) / det
+        t_ = (e1[:, 0] * w[:, 1] - e1[:, 1] * w[:, 0]) / det
+        cover = ok & (s_ >= 0) & (t_ >= 0) & (s_ + t_ <= 1)
+        depth = a[cover, 2] + s_[cover] * (b - a)[cover, 2] + t_[cover] * (c - a)[cover, 2]
+        out[i] = not (depth > q[2] + tol).any()
+    return out
+
+
+def _nostril_interiors(vertices: np.ndarray, faces: np.ndarray, ibug68: np.ndarray) -> np.ndarray:
+    """(N,) bool: the nostril tubes, which no face scanner sees.
+
+    A vertex near the nose is *seen* from a view when it is unoccluded and not at grazing
+    incidence (cos > 0.17, as a structured-light scanner); views are horizontal-ish (yaw -60..60
+    in 30 deg steps, pitch 0 and 15 deg from below), like a stereo-pod scanner's cameras. The
+    unseen vertices form one piece inside each nostril; pieces of >= 20 vertices are returned.
+    """
+    from .render import view_rotation
+
+    x, y = vertices[:, 0], vertices[:, 1]
+    alae = vertices[ibug68[[31, 35]]]
+    used = np.zeros(len(vertices), bool)
+    used[faces.ravel()] = True
+    box = used & ((x > alae[0, 0] - 12) & (x < alae[1, 0] + 12) & (y > vertices[ibug68[33], 1] - 10)
+                  & (y < vertices[ibug68[30], 1] + 15))
+    ids = np.flatnonzero(box)
+    near = box[faces].any(axis=1)  # the occluders of the nostrils are nose triangles
+    normals = _vertex_normals(vertices, faces)
+    seen = np.zeros(len(ids), bool)
+    for yaw in (-60, -30, 0, 30, 60):
+        for pitch in (0, -15):
+            r = view_rotation(yaw, pitch)
+            facing = (normals[ids] @ r.T)[:, 2] > 0.17
+            seen |= facing & visible_points(vertices, faces[near], vertices[ids], r)
+    hidden = np.zeros(len(vertices), bool)
+    hidden[ids[~seen]] = True
+    comp = _components_within(_adjacency(len(vertices), _edges(faces)[0]), hidden)
+    sizes = np.bincount(comp[comp >= 0])
+    return np.isin(comp, np.flatnonzero(sizes >= 20))
+
+
+def _clean_cut(keep_face: np.ndarray, tris: np.ndarray, n: int) -> np.ndarray:
+    """Tidy a face selection into one edge-manifold piece with simple boundary loops.
+
+    Repeats until stable: drop triangles with two or three boundary edges (spikes a cut through
+    the mesh leaves), drop the triangles around vertices where two boundary loops touch, keep
+    the largest edge-connected piece.
+    """
+    keep = keep_face.copy()
+    for _ in range(100):
+        before = keep.sum()
+        idx = np.flatnonzero(keep)
+        f = tris[idx]
+        e = np.sort(np.stack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], axis=1), axis=2)
+        uniq, inv, counts = np.unique(e.reshape(-1, 2), axis=0, return_inverse=True, return_counts=True)
+        on_boundary = counts[inv.reshape(-1, 3)] == 1
+        keep[idx[on_boundary.sum(axis=1) >= 2]] = False
+        bedges = uniq[counts == 1]
+        bdeg = np.bincount(bedges.ravel(), minlength=n)
+        pinch = bdeg > 2
+        keep[idx[pinch[f].any(axis=1)]] = False
+        used = np.zeros(n, bool)
+        used[tris[keep].ravel()] = True
+        comp = _components_within(_adjacency(n, _edges(tris[keep])[0]), used)
+        keep &= (comp[tris] == 0).all(axis=1)
+        if keep.sum() == before:
+            return keep
+    raise RuntimeError("template cut did not converge to a clean boundary")
+
+
 def blendshape_cosine(blendshapes: np.ndarray) -> np.ndarray:
     """(K, K) cosine similarity of the flattened displacement fields (K, N, 3)."""
     d = blendshapes.reshape(len(blendshapes), -1).astype(np.float64)
@@ -414,17 +544,12 @@ def build_template(model_path: str | Path = ICT_MODEL_PATH) -> dict[str, np.ndar
     inside = m["narrow_face"].astype(bool)
     names = [str(s) for s in m["expression_names"]]
 
-    keep_face = inside[tris].all(axis=1)
-    # Keep the largest edge-connected piece only (the narrow face is one piece; be safe).
-    n_ict = len(neutral)
-    adj_ict = _adjacency(n_ict, _edges(tris[keep_face])[0])
-    used = np.zeros(n_ict, bool)
-    used[tris[keep_face].ravel()] = True
-    comp = _components_within(adj_ict, used)
-    keep_face &= (comp[tris] == 0).all(axis=1)
+    inside &= _rings_from_outer_boundary(tris[inside[tris].all(axis=1)], len(neutral)) >= PEEL_RINGS
+    inside &= ~_nostril_interiors(neutral, tris[inside[tris].all(axis=1)], m["landmarks68"].astype(np.int64))
+    keep_face = _clean_cut(inside[tris].all(axis=1), tris, len(neutral))
 
     ict_vertex = np.unique(tris[keep_face].ravel())
-    to_template = np.full(n_ict, -1, dtype=np.int64)
+    to_template = np.full(len(neutral), -1, dtype=np.int64)
     to_template[ict_vertex] = np.arange(len(ict_vertex))
     faces = to_template[tris[keep_face]]
     face_map = np.full(len(tris), -1, dtype=np.int64)
@@ -496,7 +621,7 @@ def template_from_arrays(d) -> Template:
         raise RuntimeError(f"template.npz has format {int(d['format_version'])}, expected {_FORMAT_VERSION}")
     vertices = d["vertices"].astype(np.float64)
     landmark_ids = d["landmark_ids"].astype(np.int64)
-    loops = {n: _readonly(d[f"boundary_{n}"].astype(np.int64)) for n in ("outer", "right_eye", "left_eye", "mouth")}
+    loops = {n: _readonly(d[f"boundary_{n}"].astype(np.int64)) for n in BOUNDARY_LOOP_NAMES}
     boundary = np.sort(np.concatenate(list(loops.values())))
     return Template(
         vertices=_readonly(vertices),

@@ -25,7 +25,7 @@ import numpy as np
 from .errors import FacecorrError
 from .fileio import atomic_path
 from .names import LANDMARK_NAMES
-from .template import REGION_NAMES, Template, load_template
+from .template import REGION_NAMES, Template, load_template, visible_points  # noqa: F401 (re-export)
 
 #: Region colours for drawings (upper, chin, mouth).
 REGION_COLORS = np.array([[0.78, 0.80, 0.86], [0.95, 0.62, 0.25], [0.85, 0.25, 0.30]])
@@ -47,31 +47,6 @@ def template_contract(t: Template) -> dict:
         "graph_edges": t.graph_edges.tolist(),
         "graph_points": np.round(t.graph_points, 4).tolist(),
     }
-
-
-def visible_points(vertices, faces, points, rotation, tol=0.5) -> np.ndarray:
-    """(P,) bool: whether each point (on or near the surface) is unoccluded in the view.
-
-    A point is hidden when a triangle covering its projection lies more than ``tol`` mm nearer
-    the viewer (a depth test, not a normal test: in a side view symmetric points project onto
-    each other). ``rotation`` as in :func:`facecorr.render.draw_mesh` (viewer on +z).
-    """
-    v = np.asarray(vertices, float) @ np.asarray(rotation).T
-    p = np.asarray(points, float) @ np.asarray(rotation).T
-    a, b, c = (v[np.asarray(faces)[:, k]] for k in range(3))
-    e1, e2 = (b - a)[:, :2], (c - a)[:, :2]
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    ok = np.abs(det) > 1e-12
-    det = np.where(ok, det, 1.0)
-    out = np.ones(len(p), bool)
-    for i, q in enumerate(p):
-        w = q[:2] - a[:, :2]
-        s = (w[:, 0] * e2[:, 1] - w[:, 1] * e2[:, 0]) / det
-        t = (e1[:, 0] * w[:, 1] - e1[:, 1] * w[:, 0]) / det
-        cover = ok & (s >= 0) & (t >= 0) & (s + t <= 1)
-        depth = a[cover, 2] + s[cover] * (b - a)[cover, 2] + t[cover] * (c - a)[cover, 2]
-        out[i] = not (depth > q[2] + tol).any()
-    return out
 
 
 def _landmark_overlay(ax, t: Template, rotation):

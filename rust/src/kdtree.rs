@@ -1,1 +1,202 @@
-//! TODO(owner): see issue. Placeholder module; replaced by its implementation.
+//! 3-D KD-tree over a fixed point set (kiddo's `ImmutableKdTree`): built once, then k-nearest and
+//! radius queries answered in parallel over the query points (rayon, facecorr's pool when called
+//! through the bindings).
+//!
+//! Semantics follow scipy's `cKDTree`: `knn` returns, per query, the `k` nearest points sorted by
+//! distance with distances strictly below `upper_bound`; missing neighbours have distance `inf`
+//! and index `n` (the number of points). `within` returns every point with distance `<= r`,
+//! sorted by index.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+use std::num::NonZeroUsize;
+
+/// An immutable KD-tree over `n` points in 3-D (f64 coordinates, millimetres by convention).
+pub struct KdTree3 {
+    tree: ImmutableKdTree<f64, 3>,
+    points: Vec<[f64; 3]>,
+}
+
+impl KdTree3 {
+    /// Build the tree. `points` must be finite (checked by the caller) and hold < 2^32 points.
+    pub fn new(points: Vec<[f64; 3]>) -> Result<Self, String> {
+        if points.len() >= u32::MAX as usize {
+            return Err(format!("too many points for the KD-tree: {}", points.len()));
+        }
+        let tree = ImmutableKdTree::new_from_slice(&points).map_err(|e| e.to_string())?;
+        Ok(Self { tree, points })
+    }
+
+    /// Number of points in the tree.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// True when the tree holds no point.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The points the tree was built from.
+    pub fn points(&self) -> &[[f64; 3]] {
+        &self.points
+    }
+
+    /// The `k` nearest neighbours of one query with distance `< upper_bound` (strict, as scipy),
+    /// written into `dist[..k]` / `idx[..k]` (padding: `inf` / `n`).
+    fn knn_one(&self, q: &[f64; 3], k: usize, upper_bound: f64, dist: &mut [f64], idx: &mut [u64]) {
+        let n = self.points.len();
+        dist.fill(f64::INFINITY);
+        idx.fill(n as u64);
+        if n == 0 || k == 0 {
+            return;
+        }
+        let kk = NonZeroUsize::new(k.min(n)).unwrap();
+        if k == 1 {
+            let r = self.tree.query(q).nearest_one::<SquaredEuclidean<f64>>().execute();
+            let d = r.distance.sqrt();
+            if d < upper_bound {
+                dist[0] = d;
+                idx[0] = r.item as u64;
+            }
+            return;
+        }
+        let res = if upper_bound.is_finite() {
+            self.tree
+                .query(q)
+                .nearest_n::<SquaredEuclidean<f64>>(kk)
+                .within(upper_bound * upper_bound)
+                .exclusive_boundaries()
+                .execute()
+        } else {
+            self.tree.query(q).nearest_n::<SquaredEuclidean<f64>>(kk).execute()
+        };
+        let mut j = 0;
+        for r in res.into_iter() {
+            let d = r.distance.sqrt();
+            // The squared bound can differ from the root bound in the last ulp: apply scipy's.
+            if d < upper_bound && j < k {
+                dist[j] = d;
+                idx[j] = r.item as u64;
+                j += 1;
+            }
+        }
+    }
+
+    /// k-nearest neighbours of every query point, in parallel. Returns row-major `(Q, k)` arrays.
+    pub fn knn(&self, queries: &[[f64; 3]], k: usize, upper_bound: f64) -> (Vec<f64>, Vec<u64>) {
+        let mut dist = vec![0.0; queries.len() * k];
+        let mut idx = vec![0u64; queries.len() * k];
+        if k == 0 {
+            return (dist, idx);
+        }
+        dist.par_chunks_mut(k)
+            .zip(idx.par_chunks_mut(k))
+            .zip(queries.par_iter())
+            .with_min_len(64)
+            .for_each(|((d, i), q)| self.knn_one(q, k, upper_bound, d, i));
+        (dist, idx)
+    }
+
+    /// Indices of all points with distance `<= r` of each query (sorted ascending), in parallel.
+    pub fn within(&self, queries: &[[f64; 3]], r: f64) -> Vec<Vec<u64>> {
+        queries
+            .par_iter()
+            .with_min_len(16)
+            .map(|q| {
+                if self.points.is_empty() || r < 0.0 {
+                    return Vec::new();
+                }
+                let res = self
+                    .tree
+                    .query(q)
+                    .within::<SquaredEuclidean<f64>>(r * r)
+                    .unsorted()
+                    .execute();
+                let mut out: Vec<u64> = res
+                    .into_iter()
+                    .filter(|x| x.distance.sqrt() <= r)
+                    .map(|x| x.item as u64)
+                    .collect();
+                out.sort_unstable();
+                out
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg_points(n: usize, seed: u64) -> Vec<[f64; 3]> {
+        let mut s = seed;
+        let mut next = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64) / ((1u64 << 53) as f64)
+        };
+        (0..n).map(|_| [next(), next(), next()]).collect()
+    }
+
+    fn brute_knn(p: &[[f64; 3]], q: &[f64; 3], k: usize) -> Vec<(f64, usize)> {
+        let mut d: Vec<(f64, usize)> = p
+            .iter()
+            .enumerate()
+            .map(|(i, x)| {
+                let s: f64 = (0..3).map(|a| (x[a] - q[a]).powi(2)).sum();
+                (s.sqrt(), i)
+            })
+            .collect();
+        d.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        d.truncate(k);
+        d
+    }
+
+    #[test]
+    fn knn_matches_brute_force() {
+        let p = lcg_points(2000, 1);
+        let q = lcg_points(100, 2);
+        let t = KdTree3::new(p.clone()).unwrap();
+        for &k in &[1usize, 8] {
+            let (d, i) = t.knn(&q, k, f64::INFINITY);
+            for (qi, qq) in q.iter().enumerate() {
+                let b = brute_knn(&p, qq, k);
+                for j in 0..k {
+                    assert!((d[qi * k + j] - b[j].0).abs() < 1e-12);
+                    assert_eq!(i[qi * k + j] as usize, b[j].1);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn upper_bound_and_padding() {
+        let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [3.0, 0.0, 0.0]];
+        let t = KdTree3::new(p).unwrap();
+        let (d, i) = t.knn(&[[0.0, 0.0, 0.0]], 4, 2.0);
+        assert_eq!(&d[..2], &[0.0, 1.0]);
+        assert!(d[2].is_infinite() && d[3].is_infinite());
+        assert_eq!(i, vec![0, 1, 3, 3]);
+        // strict bound, as scipy
+        let (d, i) = t.knn(&[[0.0, 0.0, 0.0]], 1, 0.0);
+        assert!(d[0].is_infinite());
+        assert_eq!(i[0], 3);
+    }
+
+    #[test]
+    fn radius_query_inclusive_sorted() {
+        let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.5, 0.0, 0.0]];
+        let t = KdTree3::new(p).unwrap();
+        let r = t.within(&[[0.0, 0.0, 0.0]], 1.0);
+        assert_eq!(r[0], vec![0, 1, 3]);
+    }
+
+    #[test]
+    fn empty_tree() {
+        let t = KdTree3::new(vec![]).unwrap();
+        let (d, i) = t.knn(&[[0.0, 0.0, 0.0]], 2, f64::INFINITY);
+        assert!(d.iter().all(|x| x.is_infinite()));
+        assert_eq!(i, vec![0, 0]);
+        assert!(t.within(&[[0.0; 3]], 1.0)[0].is_empty());
+    }
+}

@@ -118,8 +118,13 @@ pub fn edges(f: &[Face]) -> Vec<[usize; 2]> {
 /// Sorted ids of the vertices on a boundary edge (an edge used by exactly one face).
 pub fn boundary_vertices(n_vertices: usize, f: &[Face]) -> Vec<usize> {
     let (e, c) = edges_with_counts(f);
+    boundary_from_edge_counts(n_vertices, &e, &c)
+}
+
+/// Boundary vertices from [`edges_with_counts`]'s output.
+pub fn boundary_from_edge_counts(n_vertices: usize, e: &[[usize; 2]], c: &[u32]) -> Vec<usize> {
     let mut on = vec![false; n_vertices];
-    for (e, &c) in e.iter().zip(&c) {
+    for (e, &c) in e.iter().zip(c) {
         if c == 1 {
             on[e[0]] = true;
             on[e[1]] = true;
@@ -138,9 +143,13 @@ pub struct Adjacency {
 
 impl Adjacency {
     pub fn new(n_vertices: usize, f: &[Face]) -> Self {
-        let e = edges(f);
+        Self::from_edges(n_vertices, &edges(f))
+    }
+
+    /// From unique edges (as returned by [`edges`]).
+    pub fn from_edges(n_vertices: usize, e: &[[usize; 2]]) -> Self {
         let mut deg = vec![0usize; n_vertices + 1];
-        for &[a, b] in &e {
+        for &[a, b] in e {
             deg[a + 1] += 1;
             deg[b + 1] += 1;
         }
@@ -150,7 +159,7 @@ impl Adjacency {
         let ptr = deg;
         let mut fill = ptr.clone();
         let mut nbr = vec![0usize; 2 * e.len()];
-        for &[a, b] in &e {
+        for &[a, b] in e {
             nbr[fill[a]] = b;
             fill[a] += 1;
             nbr[fill[b]] = a;
@@ -307,7 +316,6 @@ mod tests {
 
     #[test]
     fn closed_surface_has_no_boundary() {
-        let v = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
         let f = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
         assert!(boundary_vertices(4, &f).is_empty());
         let adj = Adjacency::new(4, &f);
@@ -322,7 +330,6 @@ mod tests {
     #[test]
     fn rings_on_a_strip() {
         // A strip of triangles 0-1-2-3-4-5 (a path graph plus diagonals).
-        let v: Vec<Vec3> = (0..6).map(|i| [i as f64, (i % 2) as f64, 0.0]).collect();
         let f = vec![[0, 1, 2], [1, 3, 2], [2, 3, 4], [3, 5, 4]];
         let adj = Adjacency::new(6, &f);
         let mut mark = vec![false; 6];
@@ -333,6 +340,5 @@ mod tests {
         adj.rings(0, 2, &mut mark, &mut out);
         out.sort();
         assert_eq!(out, vec![0, 1, 2, 3, 4]);
-        let _ = v;
     }
 }

@@ -1,7 +1,97 @@
-//! Bindings placeholder; filled in by the owner of this module.
+//! Bindings of `crate::kdtree`: the `KdTree` class (private; wrapped by `facecorr.spatial`).
 
+use std::sync::Arc;
+
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
 use pyo3::prelude::*;
+use pyo3::types::PyList;
 
-pub fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+use super::util::{run, value_err};
+use crate::kdtree::KdTree3;
+
+/// Read an (n, 3) float64 array of finite values into points; `what` names it in errors.
+pub(crate) fn points3(a: &PyReadonlyArray2<'_, f64>, what: &str) -> PyResult<Vec<[f64; 3]>> {
+    let a = a.as_array();
+    if a.ncols() != 3 {
+        return Err(value_err(format!("{what} must have shape (n, 3), got (n, {})", a.ncols())));
+    }
+    let mut out = Vec::with_capacity(a.nrows());
+    for (i, r) in a.rows().into_iter().enumerate() {
+        let p = [r[0], r[1], r[2]];
+        if !p.iter().all(|x| x.is_finite()) {
+            return Err(value_err(format!("{what} row {i} is not finite (NaN or inf)")));
+        }
+        out.push(p);
+    }
+    Ok(out)
+}
+
+/// KD-tree over (N, 3) points; k-nearest and radius queries parallel over the queries.
+#[pyclass(frozen, module = "facecorr._core")]
+pub struct KdTree {
+    inner: Arc<KdTree3>,
+}
+
+#[pymethods]
+impl KdTree {
+    #[new]
+    fn new(py: Python<'_>, points: PyReadonlyArray2<'_, f64>) -> PyResult<Self> {
+        let p = points3(&points, "points")?;
+        let t = run(py, "KdTree", move || KdTree3::new(p))?.map_err(value_err)?;
+        Ok(Self { inner: Arc::new(t) })
+    }
+
+    #[getter]
+    fn n(&self) -> usize {
+        self.inner.len()
+    }
+
+    /// (dist (Q, k), idx (Q, k) int64); missing neighbours: inf and N.
+    fn query<'py>(
+        &self,
+        py: Python<'py>,
+        q: PyReadonlyArray2<'py, f64>,
+        k: usize,
+        distance_upper_bound: f64,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<i64>>)> {
+        if k == 0 {
+            return Err(value_err("k must be >= 1"));
+        }
+        if distance_upper_bound.is_nan() || distance_upper_bound < 0.0 {
+            return Err(value_err("distance_upper_bound must be a non-negative number"));
+        }
+        let qs = points3(&q, "query points")?;
+        let nq = qs.len();
+        let t = self.inner.clone();
+        let (d, i) = run(py, "KdTree.query", move || t.knn(&qs, k, distance_upper_bound))?;
+        let i: Vec<i64> = i.into_iter().map(|x| x as i64).collect();
+        let d = ndarray::Array2::from_shape_vec((nq, k), d).expect("shape");
+        let i = ndarray::Array2::from_shape_vec((nq, k), i).expect("shape");
+        Ok((d.into_pyarray(py), i.into_pyarray(py)))
+    }
+
+    /// List (Q) of sorted int64 arrays of the points with distance <= r.
+    fn query_ball_point<'py>(
+        &self,
+        py: Python<'py>,
+        q: PyReadonlyArray2<'py, f64>,
+        r: f64,
+    ) -> PyResult<Bound<'py, PyList>> {
+        if !r.is_finite() || r < 0.0 {
+            return Err(value_err("r must be a finite non-negative number"));
+        }
+        let qs = points3(&q, "query points")?;
+        let t = self.inner.clone();
+        let res = run(py, "KdTree.query_ball_point", move || t.within(&qs, r))?;
+        let items: Vec<Bound<'py, PyArray1<i64>>> = res
+            .into_iter()
+            .map(|v| v.into_iter().map(|x| x as i64).collect::<Vec<_>>().into_pyarray(py))
+            .collect();
+        PyList::new(py, items)
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<KdTree>()?;
     Ok(())
 }

@@ -1,0 +1,112 @@
+"""Nearest-neighbour queries in 3-D: a KD-tree with scipy ``cKDTree`` semantics (Rust, kiddo).
+
+Queries run in parallel in facecorr's thread pool (2 threads unless ``FACECORR_THREADS`` says
+otherwise) with the GIL released.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import _core
+
+__all__ = ["KDTree"]
+
+
+def _as_points(a, what: str) -> np.ndarray:
+    """(n, 3) C-contiguous float64 copy/view of ``a``; ValueError on a bad shape or NaN."""
+    try:
+        arr = np.asarray(a, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{what} must be a numeric array of shape (n, 3): {e}") from None
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{what} must have shape (n, 3), got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{what} contains NaN or inf")
+    return np.ascontiguousarray(arr)
+
+
+class KDTree:
+    """KD-tree over a fixed set of 3-D points, built once.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float
+        The points (mm by convention). float32 and float64 are accepted; queries run in float64.
+        N may be 0 (every query then reports missing neighbours).
+
+    Attributes
+    ----------
+    data : (N, 3) float64 ndarray
+        The points.
+    n : int
+        Number of points.
+    """
+
+    def __init__(self, points):
+        self.data = _as_points(points, "points")
+        self.data.setflags(write=False)
+        self.n = int(self.data.shape[0])
+        self._tree = _core.KdTree(self.data)
+
+    def query(self, q, k: int = 1, distance_upper_bound: float = math.inf):
+        """Nearest neighbours, as ``scipy.spatial.cKDTree.query``.
+
+        Parameters
+        ----------
+        q : (3,) or (Q, 3) array_like of float
+            Query point(s).
+        k : int
+            Number of neighbours (>= 1).
+        distance_upper_bound : float
+            Only neighbours with distance strictly below this are returned.
+
+        Returns
+        -------
+        dist : float64 ndarray, shape () / (Q,) for k == 1, (k,) / (Q, k) otherwise
+            Euclidean distances, ascending; ``inf`` for missing neighbours.
+        idx : int64 ndarray, same shape
+            Point indices; ``n`` for missing neighbours.
+        """
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+            raise ValueError(f"k must be an integer >= 1, got {k!r}")
+        ub = float(distance_upper_bound)
+        if math.isnan(ub) or ub < 0:
+            raise ValueError(f"distance_upper_bound must be >= 0, got {distance_upper_bound!r}")
+        qa = np.asarray(q, dtype=np.float64) if not isinstance(q, np.ndarray) else q
+        single = qa.ndim == 1
+        qa = _as_points(qa.reshape(1, -1) if single else qa, "query points")
+        dist, idx = self._tree.query(qa, int(k), ub)
+        if k == 1:
+            dist, idx = dist[:, 0], idx[:, 0]
+        if single:
+            return dist[0], idx[0]
+        return dist, idx
+
+    def query_ball_point(self, q, r: float):
+        """Indices of all points within distance ``r`` (inclusive), as ``cKDTree.query_ball_point``.
+
+        Parameters
+        ----------
+        q : (3,) or (Q, 3) array_like of float
+            Query point(s).
+        r : float
+            Radius (>= 0).
+
+        Returns
+        -------
+        list of int64 ndarray (one per query, sorted ascending), or one ndarray for a (3,) query.
+        """
+        r = float(r)
+        if not math.isfinite(r) or r < 0:
+            raise ValueError(f"r must be a finite number >= 0, got {r!r}")
+        qa = np.asarray(q, dtype=np.float64) if not isinstance(q, np.ndarray) else q
+        single = qa.ndim == 1
+        qa = _as_points(qa.reshape(1, -1) if single else qa, "query points")
+        out = self._tree.query_ball_point(qa, r)
+        return out[0] if single else out
+
+    def __repr__(self) -> str:
+        return f"KDTree(n={self.n})"
