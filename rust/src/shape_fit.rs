@@ -30,7 +30,7 @@
 //!   rescaling was needed: starting 10x stiffer (ω_smooth⁰ = 200000, 15 levels) or with
 //!   ω_rigid 10x larger made the dense error worse on our test scans (1.69 / 1.73 vs 1.66 mm),
 //!   i.e. the paper's values already start in the "nearly affine" regime for mm-sized faces.
-//! * **Schedule defaults** (6 levels, memory 5, tolerances 1e-3 / 1e-2) were measured against the
+//! * **Schedule defaults** (8 levels, memory 5, tolerances 1e-3 / 1e-2) were measured against the
 //!   paper-literal run (12 levels, 1e-4): same accuracy, about half the work (BENCHMARKS.md).
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -81,7 +81,7 @@ impl Default for ShapeFitOptions {
             w_smooth: 20000.0,
             w_rigid: 10.0,
             relax_factor: 0.5,
-            n_levels: 6,
+            n_levels: 8,
             max_icp: 5,
             relax_tol: 1e-2,
             max_iter: 1000,

@@ -17,17 +17,18 @@ from ..mesh import Mesh
 from ._geometry import boundary_mask, vertex_normals
 
 #: Defaults: the paper's weights (ω_data 1, ω_smooth 20000, ω_rigid 10, halving, ≤ 1000 L-BFGS
-#: iterations per solve). Measured on 7 synthetic test scans (BENCHMARKS.md, "Registration
-#: (issue 5)"), single thread: 6 weight levels instead of 12 (dense error 2.48 vs 2.51 mm,
-#: CPU 1.0 vs 1.6 s), L-BFGS memory 5 (same error, -20 % CPU), and relative-change tolerances of
-#: 1e-3 (inner solve; the paper's 1e-4 costs twice the evaluations for 0.004 mm) and 1e-2 (when
-#: to relax). ``rel_tol=1e-4, n_levels=12, memory=10, relax_tol=1e-3`` is the paper-literal run.
+#: iterations per solve). Measured on synthetic test scans (BENCHMARKS.md, "Registration
+#: (issue 5)"): 8 weight levels (ω_smooth down to 156; 6 / 8 / 10 levels: dense error 1.92 /
+#: 1.83 / 1.82 mm, shape CPU 0.47 / 0.73 / 0.83 s on 14 scans), L-BFGS memory 5 (same error as
+#: 10, -20 % CPU), relative-change tolerances 1e-3 for an inner solve (the paper's 1e-4 costs
+#: twice the evaluations for 0.004 mm) and 1e-2 for "negligible" (when to relax).
+#: ``rel_tol=1e-4, n_levels=12, memory=10, relax_tol=1e-3`` is the paper-literal run.
 SHAPE_DEFAULTS = dict(
     w_data=1.0,
     w_smooth=20000.0,
     w_rigid=10.0,
     relax_factor=0.5,
-    n_levels=6,
+    n_levels=8,
     max_icp=5,
     relax_tol=1e-2,
     max_iter=1000,
