@@ -58,8 +58,8 @@ REGISTER_DEFAULTS = dict(
     alignment="similarity",
     fit_expression=True,
     fit_shape=True,
-    # ω of the landmark term in the shape fit (paper: none = 0). 10 measured on 14 synthetic test
-    # scans: nose error 1.84 -> 1.13 mm, eyes 1.06 -> 0.79 mm, dense 2.47 -> 2.42 mm.
+    # ω of the landmark term in the shape fit (paper: none = 0). 10 measured on 7 synthetic test
+    # scans (6706-vertex template): nose 1.84 -> 1.13 mm, eyes 1.06 -> 0.79 mm, dense 2.47 -> 2.42.
     shape_landmark_weight=10.0,
     shape_lip_rim_rings=1,  # no data term on the inner lip rim + this many rings (-1: keep)
 )

@@ -27,14 +27,16 @@ flip between two states; a round whose step does not shrink is halved (damping).
 invalid matches (a badly matched region pulls harder). ``weights="uniform"`` (all ω = 1 on valid
 matches, stop when α converges) is the default, and the point-to-plane energy is blended with
 30 % point-to-point (``point_to_point=0.3``): jaw opening moves the chin mostly *along* its
-surface, which point-to-plane alone does not see. Measured on 14 synthetic test scans with the
+surface, which point-to-plane alone does not see. Measured on 14 synthetic test scans (with the
+6706-vertex template of that time) and the
 same shape fit (BENCHMARKS.md): dense error 2.54 mm (paper schedule) -> 2.15 (uniform) -> 1.90
 (uniform + 0.3 point-to-point); mouth region 4.55 -> 3.44 -> 2.57 mm. ``weights="paper",
 point_to_point=0`` is the paper's method.
 
 Teeth and mouth interior (the paper's failure case): scans of open mouths show teeth, tongue and
 the mouth socket, which the template does not have, and a lip vertex near them would be pulled
-inwards. Three guards, each measurable on the synthetic open-mouth scans:
+inwards. The guards (BENCHMARKS.md: on ICT-model scans with the jaw wide open, lip error 1.6-1.8 mm
+with them vs up to 11 mm without):
 * the normal test at φ/2 = 40° in the mouth region rejects most of the socket's walls;
 * matches farther than ``max_distance`` (mm) are dropped (teeth sit ≥ 5 mm behind the lips);
 * scan boundary vertices are never matches (``reject_boundary``): hair, ears and holes' rims;
