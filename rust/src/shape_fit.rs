@@ -111,6 +111,9 @@ pub struct SolveRecord {
     pub n_valid: usize,
     pub iterations: usize,
     pub evaluations: usize,
+    /// Wall seconds spent on nearest neighbours + normals + weights, and in L-BFGS.
+    pub seconds_correspond: f64,
+    pub seconds_solve: f64,
 }
 
 /// Result of [`fit`].
@@ -464,13 +467,11 @@ pub fn fit(
         }
     }
     let pts: Vec<[f64; 3]> = vertices.iter().map(|v| [v[0] - c[0], v[1] - c[1], v[2] - c[2]]).collect();
-    let shifted = ScanTarget {
-        tree: ImmutableKdTree::new_from_slice(&scan.points.iter().map(|p| [p[0] - c[0], p[1] - c[1], p[2] - c[2]]).collect::<Vec<_>>())
-            .expect("KD-tree construction failed"),
-        points: scan.points.iter().map(|p| [p[0] - c[0], p[1] - c[1], p[2] - c[2]]).collect(),
-        normals: scan.normals.clone(),
-        is_boundary: scan.is_boundary.clone(),
-    };
+    let shifted = ScanTarget::new(
+        scan.points.iter().map(|p| [p[0] - c[0], p[1] - c[1], p[2] - c[2]]).collect(),
+        scan.normals.clone(),
+        scan.is_boundary.clone(),
+    );
     let adj = Adjacency::from_faces(n, faces);
     let mut x: Vec<f64> = (0..n).flat_map(|_| IDENTITY).collect();
     let lopts = LbfgsOptions { memory: opts.memory, max_iter: opts.max_iter, rel_tol: opts.rel_tol, grad_tol: 1e-12, ..Default::default() };
@@ -484,11 +485,14 @@ pub fn fit(
     for level in 0..opts.n_levels {
         let mut e_prev = f64::INFINITY;
         for _ in 0..opts.max_icp.max(1) {
+            let t_corr = std::time::Instant::now();
             let cur = deform(&x, &pts);
             let normals = vertex_normals(&cur, faces);
             let mut corr = shifted.correspond(&cur, &normals, opts);
             corr.anchor = anchor.clone();
             let n_valid = corr.weight.iter().filter(|&&v| v > 0.0).count();
+            let seconds_correspond = t_corr.elapsed().as_secs_f64();
+            let t_solve = std::time::Instant::now();
             let energy = |xx: &[f64], g: &mut [f64]| energy_gradient(xx, &pts, &adj, &corr, w, g).total;
             let rep = if opts.precondition {
                 let pc = BlockPreconditioner::new(&pts, &adj, &corr, w);
@@ -496,6 +500,7 @@ pub fn fit(
             } else {
                 lbfgs::minimize(energy, &mut x, &lopts)
             };
+            let seconds_solve = t_solve.elapsed().as_secs_f64();
             let ep = energy_gradient(&x, &pts, &adj, &corr, w, &mut gbuf);
             let e = ep.total;
             solves.push(SolveRecord {
@@ -510,6 +515,8 @@ pub fn fit(
                 n_valid,
                 iterations: rep.iterations,
                 evaluations: rep.evaluations,
+                seconds_correspond,
+                seconds_solve,
             });
             let negligible = e_prev.is_finite() && (e_prev - e).abs() <= opts.relax_tol * e_prev.abs().max(1e-300);
             e_prev = e;

@@ -224,6 +224,8 @@ fn shape_fit<'py>(
         d.set_item("n_valid", s.n_valid)?;
         d.set_item("iterations", s.iterations)?;
         d.set_item("evaluations", s.evaluations)?;
+        d.set_item("seconds_correspond", s.seconds_correspond)?;
+        d.set_item("seconds_solve", s.seconds_solve)?;
         solves.push(d);
     }
     Ok((verts, tr, solves))
