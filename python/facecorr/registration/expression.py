@@ -114,6 +114,7 @@ EXPRESSION_DEFAULTS = dict(
     point_to_point=0.3,
     refine_affine=False,
     landmark_weight=1.0,
+    alpha_prior=0.0,
 )
 
 
@@ -192,6 +193,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         refine_affine (False: T_A stays the landmark alignment, the paper; True: after each α
         solve, T_A is re-solved by linear least squares on the same point-to-plane matches plus
         the landmarks, weight ``landmark_weight`` x the total data weight spread over them),
+        alpha_prior (μ ≥ 0: adds μ W ‖α‖², W the total data weight; 0 = the paper),
         solver ("newton"|"lbfgsb"), point_to_point (λ in [0, 1): the energy becomes
         Σ ω_r [(1 − λ) ρ_plane² + λ ‖q_r − p_r‖²]; 0 = the paper).
 
@@ -270,13 +272,15 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
             J = np.vstack([J, shapes.transpose(2, 1, 0).reshape(-1, k)])
             w = np.concatenate([(1.0 - lam) * w, lam * np.tile(w, 3)])
 
+        # optional ridge prior μ W ‖α‖² (W = total data weight, so μ is in mm² per vertex)
+        ridge = float(o["alpha_prior"]) * float(w.sum())
         if o["solver"] == "newton":
             jw = J * w[:, None]
-            a_new = box_qp(2.0 * J.T @ jw, 2.0 * jw.T @ c, alpha)
+            a_new = box_qp(2.0 * J.T @ jw + 2.0 * ridge * np.eye(k), 2.0 * jw.T @ c, alpha)
         else:
             def f(a):
                 r = c - J @ a
-                return float(np.sum(w * r * r)), -2.0 * J.T @ (w * r)
+                return float(np.sum(w * r * r) + ridge * a @ a), -2.0 * J.T @ (w * r) + 2.0 * ridge * a
 
             a_new = minimize(f, alpha, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * k,
                              options={"maxiter": 200, "ftol": 1e-12, "gtol": 1e-9}).x
