@@ -15,7 +15,6 @@ from facecorr.errors import RegistrationError
 from facecorr.mesh import Mesh
 from facecorr.names import LANDMARK_NAMES
 from facecorr.registration import register
-from facecorr.registration._geometry import boundary_mask, vertex_normals
 from facecorr.registration.expression import box_qp, fit_expression
 from facecorr.template import load_template
 
@@ -34,12 +33,6 @@ def test_box_qp_matches_scipy_lbfgsb(seed):
     f = lambda a: 0.5 * a @ h @ a - g @ a
     assert f(ours) <= ref.fun + 1e-9 * max(1.0, abs(ref.fun))
     assert np.all((ours >= 0) & (ours <= 1))
-
-
-def test_fast_geometry_matches_mesh():
-    mesh, *_ = make_scan(4)
-    np.testing.assert_allclose(vertex_normals(mesh.vertices, mesh.faces), mesh.vertex_normals, atol=1e-12)
-    np.testing.assert_array_equal(boundary_mask(mesh.n_vertices, mesh.faces), mesh.is_boundary)
 
 
 def _subdivided(v, f):

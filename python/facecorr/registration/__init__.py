@@ -14,7 +14,6 @@ import numpy as np
 from ..errors import RegistrationError
 from ..mesh import Mesh
 from ..names import LANDMARK_NAMES
-from ._geometry import boundary_mask, vertex_normals
 from .affine import ALIGN_MODES, align_landmarks, apply_transform
 from .expression import EXPRESSION_DEFAULTS, ExpressionFit, fit_expression, rim_mask
 from .shape import SHAPE_DEFAULTS, ShapeFit, fit_shape
@@ -124,8 +123,8 @@ def register(mesh: Mesh, landmarks: dict, template=None, **options) -> Registrat
     timings["affine"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    scan_normals = vertex_normals(mesh.vertices, mesh.faces)
-    scan_boundary = boundary_mask(mesh.n_vertices, mesh.faces)
+    scan_normals = mesh.vertex_normals
+    scan_boundary = mesh.is_boundary
     timings["scan_geometry"] = time.perf_counter() - t0
 
     k = template.n_blendshapes

@@ -53,7 +53,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ..mesh import Mesh
-from ._geometry import boundary_mask, vertex_normals
+from .._core import mesh_vertex_normals
 
 
 def _kdtree(points):
@@ -218,7 +218,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     shapes = np.einsum("knd,ed->kne", a_k, lin)  # (K, N, 3)
     if o["refine_affine"] and landmarks is None:
         raise ValueError("refine_affine needs the landmarks (template ids, scan positions)")
-    faces = np.asarray(template.faces)
+    faces = np.ascontiguousarray(template.faces, dtype=np.int64)
     k = len(shapes)
     regions = np.asarray(template.regions)
     upper, chin, mouth = (regions == 0), (regions == 1), (regions == 2)
@@ -226,8 +226,8 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     cos_half = np.cos(np.radians(o["phi_deg"] / 2.0))
     cos_req = np.where(upper, cos_full, cos_half)
     tree = tree if tree is not None else _kdtree(scan.vertices)
-    scan_n = vertex_normals(scan.vertices, scan.faces) if scan_normals is None else np.asarray(scan_normals)
-    scan_b = boundary_mask(scan.n_vertices, scan.faces) if scan_boundary is None else np.asarray(scan_boundary, bool)
+    scan_n = scan.vertex_normals if scan_normals is None else np.asarray(scan_normals)
+    scan_b = scan.is_boundary if scan_boundary is None else np.asarray(scan_boundary, bool)
     keep = np.ones(template.n_vertices, dtype=bool)
     if o["lip_rim_rings"] >= 0:
         keep &= ~rim_mask(template, o["lip_rim_rings"])
@@ -239,7 +239,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     rounds = []
     for _ in range(int(o["max_rounds"])):
         p = base + np.tensordot(alpha, shapes, axes=1)
-        pn = vertex_normals(p, faces)
+        pn = mesh_vertex_normals(np.ascontiguousarray(p, dtype=np.float64), faces)
         dist, idx = tree.query(p, k=1)
         idx = np.asarray(idx, dtype=np.int64)
         q, qn = scan.vertices[idx], scan_n[idx]

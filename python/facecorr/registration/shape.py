@@ -14,7 +14,6 @@ import numpy as np
 
 from .. import _core
 from ..mesh import Mesh
-from ._geometry import boundary_mask, vertex_normals
 
 #: Defaults: the paper's weights (ω_data 1, ω_smooth 20000, ω_rigid 10, halving, ≤ 1000 L-BFGS
 #: iterations per solve). Measured on synthetic test scans (BENCHMARKS.md, "Registration
@@ -96,8 +95,8 @@ def fit_shape(vertices, faces, scan: Mesh, anchors=None, scan_normals=None, scan
         ids = np.ascontiguousarray(anchors[0], dtype=np.int64).reshape(-1)
         pts = np.ascontiguousarray(anchors[1], dtype=np.float64).reshape(-1, 3)
     t0 = time.perf_counter()
-    sn = vertex_normals(scan.vertices, scan.faces) if scan_normals is None else scan_normals
-    sb = boundary_mask(scan.n_vertices, scan.faces) if scan_boundary is None else scan_boundary
+    sn = scan.vertex_normals if scan_normals is None else scan_normals
+    sb = scan.is_boundary if scan_boundary is None else scan_boundary
     out_v, out_t, solves = _core.shape_fit(
         v, f, scan.vertices, np.ascontiguousarray(sn, dtype=np.float64), np.ascontiguousarray(sb, dtype=bool),
         ids, pts,
