@@ -87,18 +87,27 @@ pub fn fingerprint(solver: &GeodesicSolver, centers: &[u32], radii: &[f64]) -> V
     let mut order: Vec<usize> = (0..nr).collect();
     order.sort_by(|&a, &b| radii[a].total_cmp(&radii[b]));
     let sorted: Vec<f64> = order.iter().map(|&k| radii[k]).collect();
-    out.par_chunks_mut(nr).zip(centers.par_iter()).with_min_len(4).for_each(|(row, &c)| {
+    // Centres in the solver's (Morton) vertex order: consecutive centres on a thread have
+    // overlapping disks, so their mesh data is still in cache. Results go back to input order.
+    let mut by_pos: Vec<(u32, usize)> =
+        centers.iter().enumerate().map(|(i, &c)| (solver.internal(c), i)).collect();
+    by_pos.sort_unstable();
+    let mut sorted_out = vec![0.0; centers.len() * nr];
+    sorted_out.par_chunks_mut(nr).zip(by_pos.par_iter()).with_min_len(8).for_each(|(row, &(c, _))| {
         let mut areas = [0.0f64; 16];
         let mut big = Vec::new();
         let acc: &mut [f64] = if nr <= 16 { &mut areas[..nr] } else { big.resize(nr, 0.0); &mut big };
         solver.with_workspace(|ws| {
-            solver.propagate_band(ws, &[solver.internal(c)], rmax, Method::Fmm);
+            solver.propagate_band(ws, &[c], rmax, Method::Fmm);
             disk_areas(solver, ws, &sorted, rmax, acc);
         });
         for (k, &o) in order.iter().enumerate() {
             row[o] = acc[k] / (std::f64::consts::PI * sorted[k] * sorted[k]);
         }
     });
+    for (row, &(_, i)) in sorted_out.chunks(nr).zip(&by_pos) {
+        out[i * nr..(i + 1) * nr].copy_from_slice(row);
+    }
     out
 }
 

@@ -25,7 +25,7 @@
 //! added as extra stencils (the original one is kept: its checks make it harmless), with `|CD|`
 //! the straight distance in the unfolded strip, a true path length on the surface.
 
-use std::cmp::Ordering;
+use std::cmp::Reverse;
 use std::collections::{BinaryHeap, HashMap};
 use std::sync::Mutex;
 
@@ -63,20 +63,15 @@ pub enum Method {
     Dijkstra,
 }
 
-#[derive(Clone, Copy, PartialEq)]
-struct HeapItem(f64, u32);
-impl Eq for HeapItem {}
-impl PartialOrd for HeapItem {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
-    }
-}
-impl Ord for HeapItem {
-    // min-heap on the distance, ties broken by the vertex index (deterministic order)
-    fn cmp(&self, other: &Self) -> Ordering {
-        other.0.total_cmp(&self.0).then_with(|| other.1.cmp(&self.1))
-    }
-}
+/// Heap entry: (bit pattern of the distance, vertex). Distances are non-negative, so their IEEE
+/// bit patterns order like the values and the comparison is a plain integer one; ties are
+/// broken by the vertex index (deterministic order). `Reverse` makes `BinaryHeap` a min-heap.
+/// The heap uses lazy deletion: an improved vertex is pushed again, stale entries are skipped.
+type HeapItem = Reverse<(u64, u32)>;
+
+/// Label of a value from a plane wave through values of different sources: it is not the
+/// distance to one point, so the point-source update must not use it.
+const MIXED: u32 = u32::MAX;
 
 const FAR: u8 = 0;
 const TRIAL: u8 = 1;
@@ -89,9 +84,11 @@ struct Node {
     /// index (into the sources) of the source the value comes from
     label: u32,
     state: u8,
+    /// needed by a band propagation (neighbour of a vertex inside the radius)
+    needed: bool,
 }
 
-const UNTOUCHED: Node = Node { dist: f64::INFINITY, label: 0, state: FAR };
+const UNTOUCHED: Node = Node { dist: f64::INFINITY, label: 0, state: FAR, needed: false };
 
 /// Per-query scratch: distances and states for all vertices, reset sparsely after each query.
 pub struct Workspace {
@@ -143,7 +140,7 @@ impl Workspace {
         if d < node.dist {
             node.dist = d;
             node.label = label;
-            self.heap.push(HeapItem(d, v));
+            self.heap.push(Reverse((d.to_bits(), v)));
         }
     }
 }
@@ -162,7 +159,6 @@ pub struct GeodesicSolver {
     vf: Vec<u32>,
     owned_off: Vec<u32>,
     max_edge: f64,
-    vertex_max_edge: Vec<f64>,
     n_split: usize,
     old_of_new: Vec<u32>,
     new_of_old: Vec<u32>,
@@ -212,8 +208,9 @@ fn make_stencil(target: u32, other: u32, g11: f64, g22: f64, g12: f64) -> Stenci
 /// Point-source update of the target of `s` (Novotni & Klein): unfold the virtual source `S`
 /// with `|S - A| = ta`, `|S - B| = tb` beyond the edge AB; if the straight ray from `S` to the
 /// target crosses AB (S in the angle at the target) the distance is `|S - C|`. Exact on
-/// developable surfaces. Returns `inf` when the circles do not meet, the ray misses the
-/// triangle, or the result would not be causal.
+/// developable surfaces. Returns `inf` when the ray misses the triangle or the result would not
+/// be causal (the wave reaches the target through another triangle), NaN when the circles do
+/// not meet (the values do not fit one point source: the caller tries a plane wave).
 #[inline]
 fn source_update(s: &Stencil, ta: f64, tb: f64) -> f64 {
     let (ax, bx, by) = (s.len, s.bx, s.by);
@@ -228,7 +225,7 @@ fn source_update(s: &Stencil, ta: f64, tb: f64) -> f64 {
     let alpha = 0.5 * (ta * ta - tb * tb + l2) * inv_l2;
     let beta2 = ta * ta * inv_l2 - alpha * alpha;
     if beta2 < 0.0 {
-        return f64::INFINITY;
+        return f64::NAN; // the values are not those of one point source: try a plane wave
     }
     // perp(e) = (-ey, ex); the origin lies on the side of sign(perp(e) . (0 - A)) = sign(ey * ax) > 0,
     // so the virtual source goes the other way: S = A + alpha e - beta perp(e)
@@ -456,12 +453,6 @@ impl GeodesicSolver {
         let (nbr_off, nl) = csr(n, &pairs);
         let nbr: Vec<u32> = nl.iter().map(|x| x.0).collect();
         let nbr_len: Vec<f64> = nl.iter().map(|x| x.1).collect();
-        let vertex_max_edge: Vec<f64> = (0..n)
-            .map(|v| {
-                let s = &nbr_len[nbr_off[v] as usize..nbr_off[v + 1] as usize];
-                s.iter().cloned().fold(0.0, f64::max)
-            })
-            .collect();
 
         // stencils, keyed by trigger vertex
         let per_face: Vec<Vec<(u32, Stencil)>> = faces
@@ -533,7 +524,6 @@ impl GeodesicSolver {
             vf,
             owned_off,
             max_edge,
-            vertex_max_edge,
             n_split,
             old_of_new,
             new_of_old,
@@ -595,7 +585,7 @@ impl GeodesicSolver {
     /// until the next one would exceed `stop`. Afterwards `ws.is_accepted(v)` marks final values
     /// (exactly the vertices with distance <= stop); other touched vertices hold upper bounds.
     pub fn propagate(&self, ws: &mut Workspace, sources: &[u32], stop: f64, method: Method) {
-        self.run(ws, sources, method, |_, _| stop);
+        self.run(ws, sources, method, |_, _, _| stop);
     }
 
     /// The propagation loop; `stop(v, d)` is called after accepting `v` at distance `d` and
@@ -606,14 +596,15 @@ impl GeodesicSolver {
         ws: &mut Workspace,
         sources: &[u32],
         method: Method,
-        mut stop_after: impl FnMut(u32, f64) -> f64,
+        mut stop_after: impl FnMut(&mut Workspace, u32, f64) -> f64,
     ) {
         ws.reset();
         let mut stop = f64::INFINITY;
         for (k, &s) in sources.iter().enumerate() {
             ws.relax(s, 0.0, k as u32);
         }
-        while let Some(HeapItem(d, v)) = ws.heap.pop() {
+        while let Some(Reverse((bits, v))) = ws.heap.pop() {
+            let d = f64::from_bits(bits);
             let vi = v as usize;
             if ws.nodes[vi].state == DONE || d > ws.nodes[vi].dist {
                 continue; // stale entry
@@ -623,7 +614,7 @@ impl GeodesicSolver {
             }
             ws.nodes[vi].state = DONE;
             ws.accepted.push(v);
-            stop = stop_after(v, d);
+            stop = stop_after(ws, v, d);
             match method {
                 Method::Dijkstra => {
                     let (s, e) = (self.nbr_off[vi] as usize, self.nbr_off[vi + 1] as usize);
@@ -647,20 +638,28 @@ impl GeodesicSolver {
                             continue;
                         }
                         let mut cand = f64::INFINITY;
+                        let mut cand_lab = lab;
                         while j < stl.len() && stl[j].target == t {
                             let st = &stl[j];
                             j += 1;
-                            cand = cand.min(d + st.len);
+                            if d + st.len < cand {
+                                cand = d + st.len;
+                                cand_lab = lab;
+                            }
                             let on = ws.nodes[st.other as usize];
                             if on.state == DONE {
                                 let to = on.dist;
-                                // the point-source model needs both values from the same source
-                                let p = if on.label == lab { source_update(st, d, to) } else { f64::INFINITY };
-                                let p = if p.is_finite() { p } else { triangle_update(st, d, to) };
-                                cand = cand.min(p);
+                                // the point-source model needs both values from one point source
+                                let same = on.label == lab && lab != MIXED;
+                                let p = if same { source_update(st, d, to) } else { f64::NAN };
+                                let p = if p.is_nan() { triangle_update(st, d, to) } else { p };
+                                if p < cand {
+                                    cand = p;
+                                    cand_lab = if on.label == lab { lab } else { MIXED };
+                                }
                             }
                         }
-                        ws.relax(t, cand, lab);
+                        ws.relax(t, cand, cand_lab);
                         i = j;
                     }
                 }
@@ -669,16 +668,37 @@ impl GeodesicSolver {
     }
 
     /// Like [`propagate`](Self::propagate) with `stop = radius`, but continues until every
-    /// vertex adjacent to a vertex with distance `< radius` is accepted too (the propagation
-    /// runs until the next vertex is farther than `radius` + the longest edge leaving a vertex
-    /// inside the disk: a neighbour's final value is at most the vertex's value + the edge).
+    /// vertex adjacent to a vertex with distance `< radius` is accepted too (so every triangle
+    /// meeting the disk has final values at its corners). The neighbours of each vertex
+    /// accepted inside the radius are marked as needed and counted; the propagation stops at
+    /// the first vertex beyond `radius` once no needed vertex is pending. The pop order is that
+    /// of a full propagation, so the accepted values are identical to it.
     pub fn propagate_band(&self, ws: &mut Workspace, sources: &[u32], radius: f64, method: Method) {
-        let mut stop = radius;
-        self.run(ws, sources, method, |v, d| {
-            if d < radius {
-                stop = stop.max(d + self.vertex_max_edge[v as usize] * (1.0 + 1e-12));
+        let mut pending = 0usize;
+        self.run(ws, sources, method, |ws, v, d| {
+            let vi = v as usize;
+            if ws.nodes[vi].needed {
+                pending -= 1;
             }
-            stop
+            if d < radius {
+                for j in self.nbr_off[vi] as usize..self.nbr_off[vi + 1] as usize {
+                    let x = self.nbr[j];
+                    let nx = &mut ws.nodes[x as usize];
+                    if nx.state != DONE && !nx.needed {
+                        nx.needed = true;
+                        pending += 1;
+                        if nx.state == FAR {
+                            nx.state = TRIAL;
+                            ws.touched.push(x);
+                        }
+                    }
+                }
+            }
+            if pending > 0 {
+                f64::INFINITY
+            } else {
+                radius
+            }
         });
     }
 

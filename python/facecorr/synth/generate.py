@@ -205,6 +205,8 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
     bad = set(scanner_options) - set(asdict(cfg))
     if bad:
         raise SynthError(f"unknown scanner option(s): {', '.join(sorted(bad))}")
+    if crop == "none" and "spacing" not in scanner_options and config is None:
+        scanner_options["spacing"] = 1.5  # a whole head at 1 mm would be ~125k vertices; 1.5 mm gives ~55k
     cfg = replace(cfg, crop=crop, **scanner_options)
     jobs = scan_list(preset, subjects, expressions, levels, subset)
     out = Path(out_dir)

@@ -15,8 +15,8 @@ How a scan is made from a deformed ICT head (model frame, mm):
    pose relative to the scanner). A grid point is kept when at least one camera sees it: not
    occluded (depth test) and not at grazing incidence (cos > ``min_cos``). This leaves the
    natural holes: nostrils, under the chin and nose, behind the ears, occluded mouth interior.
-3. **Cropping** — ``crop="face"``: inside a sphere of random radius (``crop_radius`` range)
-   around a point just below the nose tip, and in front of a plane just before the ears, like
+3. **Cropping** — ``crop="face"``: inside an ellipsoid (semi-axes r, 1.15 r, r; r random in
+   ``crop_radius``) centred ~30 mm behind the nose tip, and in front of a plane just before the ears, like
    BU-3DFE's cropped face models; ``crop="none"``: everything the cameras see (raw scan).
 4. **Triangulation** — the grid's cells become two triangles each (split along the shorter
    diagonal); a triangle is kept when its three corners are kept and no edge is longer than
@@ -41,6 +41,10 @@ from ..raster import rasterize
 from .model import ICTModel, vertex_normals
 
 
+#: Vertical elongation of the face crop ellipsoid.
+CROP_ELONGATION = 1.15
+
+
 @dataclass(frozen=True)
 class ScannerConfig:
     """Parameters of the simulated scanner (mm, degrees). Ranges are (low, high) uniform."""
@@ -49,7 +53,7 @@ class ScannerConfig:
     ref_radius: float = 100.0
     axis_z: float = 10.0
     crop: str = "face"
-    crop_radius: tuple = (88.0, 100.0)
+    crop_radius: tuple = (85.0, 95.0)
     min_cos: float = 0.17
     max_edge_factor: float = 3.5
     min_piece: int = 150
@@ -116,6 +120,35 @@ def random_rotation(rng, yaw, pitch, roll, uniform=False):
         ])
     a = np.radians([rng.uniform(-yaw, yaw), rng.uniform(-pitch, pitch), rng.uniform(-roll, roll)])
     return rot_y(a[0]) @ rot_x(a[1]) @ rot_z(a[2])
+
+
+def closest_points_on_mesh(V, F, pts, k=12):
+    """Closest points (K, 3) on the mesh (V, F) to ``pts`` (K, 3), searched among the triangles
+    incident to the ``k`` nearest vertices (exact for points within about a triangle of the
+    surface, which is how the landmarks are used)."""
+    from scipy.spatial import cKDTree
+
+    _, nv = cKDTree(V).query(pts, k=k)
+    order = np.argsort(F.ravel(), kind="stable")
+    starts = np.searchsorted(F.ravel()[order], np.arange(len(V) + 1))
+    out = np.empty_like(pts)
+    for i, p in enumerate(pts):
+        cand = np.unique(np.concatenate([order[starts[v]:starts[v + 1]] // 3 for v in nv[i]]))
+        a, b, c = (V[F[cand, j]] for j in range(3))
+        n = np.cross(b - a, c - a)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        q = p - np.einsum("kd,kd->k", p - a, n)[:, None] * n
+        inside = np.ones(len(cand), bool)
+        for u, w in ((a, b), (b, c), (c, a)):
+            inside &= np.einsum("kd,kd->k", np.cross(w - u, q - u), n) >= 0
+        cands = [q[inside]]
+        for u, w in ((a, b), (b, c), (c, a)):
+            e = w - u
+            t = np.clip(np.einsum("kd,kd->k", p - u, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0, 1)
+            cands.append(u + t[:, None] * e)
+        allc = np.concatenate(cands)
+        out[i] = allc[np.argmin(np.linalg.norm(allc - p, axis=1))]
+    return out
 
 
 def _cylinder_coords(p, axis_z):
@@ -209,9 +242,12 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
     info = {}
     if cfg.crop == "face":
         r_crop = rng.uniform(*cfg.crop_radius)
-        centre = nose_tip + np.array([rng.uniform(-3, 3), -rng.uniform(8.0, 16.0), -rng.uniform(5.0, 15.0)])
+        # an ellipsoid (1.15x taller than wide) centred ~30 mm behind the nose tip: keeps the
+        # whole brows and the chin of an open mouth, drops the ears and most of the forehead
+        centre = nose_tip + np.array([rng.uniform(-3, 3), rng.uniform(-4.0, 4.0), -rng.uniform(25.0, 35.0)])
         ear_z = 0.5 * (V[lm[0], 2] + V[lm[16], 2]) - rng.uniform(0.0, 10.0)
-        keep &= (np.linalg.norm(P - centre, axis=1) < r_crop) & (P[:, 2] > ear_z)
+        dist = np.linalg.norm((P - centre) / np.array([1.0, CROP_ELONGATION, 1.0]), axis=1)
+        keep &= (dist < r_crop) & (P[:, 2] > ear_z)
         info.update(crop_radius_mm=float(r_crop), crop_plane_z_mm=float(ear_z))
 
     # --- 4. triangulate the grid ------------------------------------------------------------
@@ -284,9 +320,7 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
         corner_ids = final_vid[r0:r0 + 2, c0:c0 + 2]
         if (corner_ids < 0).any():
             continue
-        # the point is on the outermost surface there (not hidden behind, e.g., a lip)
-        rr = np.hypot(P_out[corner_ids.ravel(), 0], P_out[corner_ids.ravel(), 2] - cfg.axis_z)
-        on_scan[k] = abs(rr.mean() - r_l[k]) < 2.0
+        on_scan[k] = True  # its grid cell is on the scan (and see the snap test below)
 
     # --- 6. rigid pose ---------------------------------------------------------------------
     R = random_rotation(rng, cfg.yaw, cfg.pitch, cfg.roll, cfg.uniform_rotation)
@@ -296,12 +330,20 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
     def posed(x):
         return x @ R.T + t
 
-    ib_scan = posed(ib)
+    # Ground-truth points as an annotator clicks them: on the (noise-free) scan surface. The ICT
+    # vertex itself can sit in a crease the 1 mm grid bridges (eye corners: up to ~2 mm), so it
+    # is snapped to the closest point of the scan; the shift is recorded in ``info``.
+    snap = closest_points_on_mesh(P_out, F, ib)
+    shift = np.linalg.norm(snap - ib, axis=1)
+    # a point hidden under the surface (inner lips of a closed mouth) is far from it: not on the scan
+    on_scan &= shift < 2.5
+    ib_scan = posed(snap)
     ib_scan[~on_scan] = np.nan
+    info["landmark_snap_mm"] = shift[list(LANDMARK_IBUG68)].round(4).tolist()
     info.update(noise_sigma_mm=float(sigma), n_spikes=n_spikes, spacing_mm=cfg.spacing,
                 head_jitter_deg=np.degrees(jit).round(3).tolist())
     return Scan(
         vertices=posed(noisy), faces=F, tri=tri_out.astype(np.int32), bary=bary_out,
-        clean=posed(P_out), pose=pose, landmarks=posed(V[lm[list(LANDMARK_IBUG68)]]),
+        clean=posed(P_out), pose=pose, landmarks=posed(snap[list(LANDMARK_IBUG68)]),
         ibug68=ib_scan, info=info,
     )

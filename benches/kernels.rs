@@ -1,0 +1,81 @@
+//! Criterion benchmarks of the Rust kernels on synthetic inputs (no files needed):
+//! KD-tree build + 10k queries into 50k points (k = 1, 8); FMM and Dijkstra from one source on a
+//! 50k-vertex wavy surface; Finger Print of 100 centres x 8 radii (up to 25 mm) on it.
+//! Run: `cargo bench --bench kernels` (the Python side-by-side table: benches/compare_kernels.py).
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use std::hint::black_box;
+
+use _core::fingerprint::fingerprint;
+use _core::geodesic::{GeodesicSolver, Method};
+use _core::kdtree::KdTree3;
+
+fn lcg(seed: u64) -> impl FnMut() -> f64 {
+    let mut s = seed;
+    move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((s >> 11) as f64) / ((1u64 << 53) as f64)
+    }
+}
+
+/// A 224 x 224 grid (50176 vertices, spacing 1 mm) bent into a smooth bump, like a face.
+fn wavy_surface() -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+    let n = 224usize;
+    let mut v = Vec::with_capacity(n * n);
+    for j in 0..n {
+        for i in 0..n {
+            let (x, y) = (i as f64 - 112.0, j as f64 - 112.0);
+            v.push([x, y, 40.0 * (-(x * x + y * y) / 3000.0).exp() + 3.0 * (x / 9.0).sin()]);
+        }
+    }
+    let id = |i: usize, j: usize| (j * n + i) as u32;
+    let mut f = Vec::with_capacity(2 * (n - 1) * (n - 1));
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            f.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            f.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    (v, f)
+}
+
+fn bench_kdtree(c: &mut Criterion) {
+    let mut r = lcg(7);
+    let pts: Vec<[f64; 3]> = (0..50_000).map(|_| [r() * 200.0, r() * 200.0, r() * 100.0]).collect();
+    let q: Vec<[f64; 3]> = (0..10_000).map(|_| [r() * 200.0, r() * 200.0, r() * 100.0]).collect();
+    let mut g = c.benchmark_group("kdtree");
+    g.sample_size(20);
+    for k in [1usize, 8] {
+        g.bench_function(format!("build+10k queries k={k}"), |b| {
+            b.iter(|| {
+                let t = KdTree3::new(pts.clone()).unwrap();
+                black_box(_core::threads::install(|| t.knn(&q, k, f64::INFINITY)))
+            })
+        });
+    }
+    g.finish();
+}
+
+fn bench_geodesic(c: &mut Criterion) {
+    let (v, f) = wavy_surface();
+    let s = GeodesicSolver::new(&v, &f).unwrap();
+    let mut g = c.benchmark_group("geodesic");
+    g.sample_size(20);
+    g.bench_function("solver build 50k", |b| b.iter(|| black_box(GeodesicSolver::new(&v, &f).unwrap())));
+    g.bench_function("fmm single source 50k", |b| {
+        b.iter(|| black_box(s.distances(&[25_000], f64::INFINITY, Method::Fmm)))
+    });
+    g.bench_function("dijkstra single source 50k", |b| {
+        b.iter(|| black_box(s.distances(&[25_000], f64::INFINITY, Method::Dijkstra)))
+    });
+    let mut r = lcg(3);
+    let centers: Vec<u32> = (0..100).map(|_| (r() * 50_000.0) as u32).collect();
+    let radii: Vec<f64> = (1..=8).map(|k| 25.0 * k as f64 / 8.0).collect();
+    g.bench_function("fingerprint 100 centres x 8 radii", |b| {
+        b.iter(|| black_box(_core::threads::install(|| fingerprint(&s, &centers, &radii))))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_kdtree, bench_geodesic);
+criterion_main!(benches);
