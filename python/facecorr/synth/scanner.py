@@ -50,7 +50,9 @@ class ScannerConfig:
     axis_z: float = 10.0
     crop: str = "face"
     crop_radius: tuple = (88.0, 100.0)
+    crop_margin: float = 8.0  # mm of skin kept beyond the outermost eyebrow / eye point
     min_cos: float = 0.17
+    landmark_snap_mm: float = 3.0  # max distance of a model landmark to the scan surface to be 'on the scan'
     max_edge_factor: float = 3.5
     min_piece: int = 150
     noise_sigma: tuple = (0.1, 0.3)
@@ -116,6 +118,55 @@ def random_rotation(rng, yaw, pitch, roll, uniform=False):
         ])
     a = np.radians([rng.uniform(-yaw, yaw), rng.uniform(-pitch, pitch), rng.uniform(-roll, roll)])
     return rot_y(a[0]) @ rot_x(a[1]) @ rot_z(a[2])
+
+
+def closest_point_on_triangles(p: np.ndarray, tri: np.ndarray):
+    """Closest points of triangles ``tri`` (K, 3, 3) to points ``p`` (K, 3), pairwise (mm).
+
+    The projection onto the plane when it falls inside the triangle, else the nearest point of
+    the three edges. Returns (distances (K,), closest points (K, 3))."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    n = np.cross(b - a, c - a)
+    nn = np.maximum(np.einsum("kd,kd->k", n, n), 1e-300)
+    h = np.einsum("kd,kd->k", p - a, n) / nn
+    best_q = p - h[:, None] * n  # projection onto the plane
+    inside = np.ones(len(p), bool)
+    for u, v in ((a, b), (b, c), (c, a)):
+        inside &= np.einsum("kd,kd->k", np.cross(v - u, best_q - u), n) >= 0
+    best = np.where(inside, np.linalg.norm(p - best_q, axis=1), np.inf)
+    for u, v in ((a, b), (b, c), (c, a)):
+        e = v - u
+        t = np.clip(np.einsum("kd,kd->k", p - u, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0.0, 1.0)
+        q = u + t[:, None] * e
+        d = np.linalg.norm(p - q, axis=1)
+        better = d < best
+        best = np.where(better, d, best)
+        best_q = np.where(better[:, None], q, best_q)
+    return best, best_q
+
+
+def closest_point_on_mesh(points: np.ndarray, V: np.ndarray, F: np.ndarray, search_radius: float):
+    """Closest point of the mesh (V, F) to each of ``points`` (K, 3) (mm), looking only at
+    triangles with a vertex within ``search_radius`` of the point.
+
+    Returns (distances (K,), closest points (K, 3)); inf and NaN where no triangle is that near."""
+    from scipy.spatial import cKDTree
+
+    dist = np.full(len(points), np.inf)
+    closest = np.full((len(points), 3), np.nan)
+    if len(F) == 0:
+        return dist, closest
+    order = np.argsort(F.ravel(), kind="stable")
+    starts = np.searchsorted(F.ravel()[order], np.arange(len(V) + 1))
+    for k, ids in enumerate(cKDTree(V).query_ball_point(points, search_radius)):
+        if not ids:
+            continue
+        faces = np.unique(np.concatenate([order[starts[i]:starts[i + 1]] // 3 for i in ids]))
+        if len(faces):
+            d, q = closest_point_on_triangles(np.repeat(points[k][None], len(faces), 0), V[F[faces]])
+            j = int(np.argmin(d))
+            dist[k], closest[k] = d[j], q[j]
+    return dist, closest
 
 
 def _cylinder_coords(p, axis_z):
@@ -210,6 +261,10 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
     if cfg.crop == "face":
         r_crop = rng.uniform(*cfg.crop_radius)
         centre = nose_tip + np.array([rng.uniform(-3, 3), -rng.uniform(8.0, 16.0), -rng.uniform(5.0, 15.0)])
+        # BU-3DFE's cropped faces always contain the eyebrows and the eyes with some skin
+        # around them: grow the sphere if a brow or eye point would be near its edge.
+        brow_eye = V[lm[17:48]]
+        r_crop = max(r_crop, float(np.linalg.norm(brow_eye - centre, axis=1).max()) + cfg.crop_margin)
         ear_z = 0.5 * (V[lm[0], 2] + V[lm[16], 2]) - rng.uniform(0.0, 10.0)
         keep &= (np.linalg.norm(P - centre, axis=1) < r_crop) & (P[:, 2] > ear_z)
         info.update(crop_radius_mm=float(r_crop), crop_plane_z_mm=float(ear_z))
@@ -270,23 +325,15 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
         amp = rng.uniform(*cfg.spike_amplitude, n_spikes) * rng.choice([-1.0, 1.0], n_spikes)
         noisy[idx] += amp[:, None] * vdir[idx]
 
-    # --- ground truth on the scan: which iBUG-68 points are on it ---------------------------
+    # --- ground truth on the scan: the iBUG-68 points as an annotator would click them --------
+    # Each model landmark is moved to the nearest point of the noise-free scan surface (a point
+    # in a fold -- an eye corner of a squinting face -- to the visible corner next to it). It is
+    # on the scan when that point is within ``landmark_snap_mm``; farther means cropped, unseen
+    # or hidden behind another surface (e.g. an inner lip point of a closed mouth).
     ib = V[lm]
-    th_l, r_l = _cylinder_coords(ib, cfg.axis_z)
-    lu, lv = (th_l - th0) / d_theta, (y0 - ib[:, 1]) / cfg.spacing
-    final_vid = np.full((H, W), -1, dtype=np.int64)
-    final_vid[rows[src], cols[src]] = np.arange(len(src))
-    on_scan = np.zeros(68, bool)
-    for k in range(68):
-        c0, r0 = int(np.floor(lu[k])), int(np.floor(lv[k]))
-        if not (0 <= r0 < H - 1 and 0 <= c0 < W - 1):
-            continue
-        corner_ids = final_vid[r0:r0 + 2, c0:c0 + 2]
-        if (corner_ids < 0).any():
-            continue
-        # the point is on the outermost surface there (not hidden behind, e.g., a lip)
-        rr = np.hypot(P_out[corner_ids.ravel(), 0], P_out[corner_ids.ravel(), 2] - cfg.axis_z)
-        on_scan[k] = abs(rr.mean() - r_l[k]) < 2.0
+    snap_dist, ib_snapped = closest_point_on_mesh(ib, P_out, F, cfg.landmark_snap_mm + 2.0 * cfg.spacing)
+    on_scan = snap_dist <= cfg.landmark_snap_mm
+    info["landmark_snap_max_mm"] = round(float(snap_dist[list(LANDMARK_IBUG68)].max()), 4)
 
     # --- 6. rigid pose ---------------------------------------------------------------------
     R = random_rotation(rng, cfg.yaw, cfg.pitch, cfg.roll, cfg.uniform_rotation)
@@ -296,12 +343,13 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
     def posed(x):
         return x @ R.T + t
 
-    ib_scan = posed(ib)
+    ib_gt = np.where(on_scan[:, None], ib_snapped, ib)
+    ib_scan = posed(ib_gt)
     ib_scan[~on_scan] = np.nan
     info.update(noise_sigma_mm=float(sigma), n_spikes=n_spikes, spacing_mm=cfg.spacing,
                 head_jitter_deg=np.degrees(jit).round(3).tolist())
     return Scan(
         vertices=posed(noisy), faces=F, tri=tri_out.astype(np.int32), bary=bary_out,
-        clean=posed(P_out), pose=pose, landmarks=posed(V[lm[list(LANDMARK_IBUG68)]]),
+        clean=posed(P_out), pose=pose, landmarks=posed(ib_gt[list(LANDMARK_IBUG68)]),
         ibug68=ib_scan, info=info,
     )
