@@ -130,7 +130,9 @@ def closest_point_on_triangles(p: np.ndarray, tri: np.ndarray):
     nn = np.maximum(np.einsum("kd,kd->k", n, n), 1e-300)
     h = np.einsum("kd,kd->k", p - a, n) / nn
     best_q = p - h[:, None] * n  # projection onto the plane
-    inside = np.ones(len(p), bool)
+    # (near-)degenerate triangles have no usable plane: only their edges count
+    longest2 = np.max([np.einsum("kd,kd->k", e, e) for e in (b - a, c - b, a - c)], axis=0)
+    inside = nn > 1e-16 * longest2**2
     for u, v in ((a, b), (b, c), (c, a)):
         inside &= np.einsum("kd,kd->k", np.cross(v - u, best_q - u), n) >= 0
     best = np.where(inside, np.linalg.norm(p - best_q, axis=1), np.inf)
