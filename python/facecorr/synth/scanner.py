@@ -24,7 +24,11 @@ How a scan is made from a deformed ICT head (model frame, mm):
    pieces are dropped. The connectivity has nothing to do with the ICT mesh.
 5. **Sensor noise** — Gaussian along the viewing ray of the best camera (sigma drawn per scan
    from ``noise_sigma``), plus rare spikes (``spike_fraction``, ``spike_amplitude`` mm).
-6. **Pose** — a random rigid transform (yaw/pitch/roll uniform within the configured ranges,
+6. **Landmarks** — each iBUG-68 point is moved to the nearest point of the noise-free scan
+   surface, as an annotator clicks the visible eye corner when the model's corner vertex lies in
+   a fold (squint); a point more than ``landmark_snap_mm`` away is not on the scan (cropped jaw
+   line, inner lips hidden by closed lips). The crop sphere always contains the brows and eyes.
+7. **Pose** — a random rigid transform (yaw/pitch/roll uniform within the configured ranges,
    or a uniform random rotation) and translation maps the model frame to the scan frame.
 """
 
