@@ -27,7 +27,8 @@ How a scan is made from a deformed ICT head (model frame, mm):
 6. **Landmarks** — each iBUG-68 point is moved to the nearest point of the noise-free scan
    surface, as an annotator clicks the visible eye corner when the model's corner vertex lies in
    a fold (squint); a point more than ``landmark_snap_mm`` away is not on the scan (cropped jaw
-   line, inner lips hidden by closed lips). The crop sphere always contains the brows and eyes.
+   line, inner lips hidden by closed lips); ``landmark8_snap_mm`` for the 8 landmarks, which are
+   always annotated. The crop sphere always contains the brows and eyes.
 7. **Pose** — a random rigid transform (yaw/pitch/roll uniform within the configured ranges,
    or a uniform random rotation) and translation maps the model frame to the scan frame.
 """
@@ -57,6 +58,7 @@ class ScannerConfig:
     crop_margin: float = 8.0  # mm of skin kept beyond the outermost eyebrow / eye point
     min_cos: float = 0.17
     landmark_snap_mm: float = 3.0  # max distance of a model landmark to the scan surface to be 'on the scan'
+    landmark8_snap_mm: float = 6.0  # the same for the 8 landmarks of the method
     max_edge_factor: float = 3.5
     min_piece: int = 150
     noise_sigma: tuple = (0.1, 0.3)
@@ -337,8 +339,12 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
     # on the scan when that point is within ``landmark_snap_mm``; farther means cropped, unseen
     # or hidden behind another surface (e.g. an inner lip point of a closed mouth).
     ib = V[lm]
-    snap_dist, ib_snapped = closest_point_on_mesh(ib, P_out, F, cfg.landmark_snap_mm + 2.0 * cfg.spacing)
-    on_scan = snap_dist <= cfg.landmark_snap_mm
+    # The 8 landmarks of the method are always annotated (a deep fold -- the subnasale under a
+    # wrinkled nose in disgust -- moves them farther: up to ``landmark8_snap_mm``).
+    limit = np.full(68, cfg.landmark_snap_mm)
+    limit[list(LANDMARK_IBUG68)] = max(cfg.landmark_snap_mm, cfg.landmark8_snap_mm)
+    snap_dist, ib_snapped = closest_point_on_mesh(ib, P_out, F, limit.max() + 2.0 * cfg.spacing)
+    on_scan = snap_dist <= limit
     info["landmark_snap_max_mm"] = round(float(snap_dist[list(LANDMARK_IBUG68)].max()), 4)
 
     # --- 6. rigid pose ---------------------------------------------------------------------
