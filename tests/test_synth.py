@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from facecorr.errors import FacecorrError
 from facecorr.io import load_mesh
 from facecorr.names import LANDMARK_IBUG68, LANDMARK_NAMES
-from facecorr.synth import (SynthError, generate, generate_scan, load_ict, load_index, model_vertices,
+from facecorr.synth import (SynthError, generate, generate_scan, load_ict, load_index, model_vertices, scan_list,
                             subject_split)
 from facecorr.synth.commands import main as synth_main
 from facecorr.synth.scanner import closest_point_on_triangles
@@ -261,3 +261,10 @@ def test_cli_error_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "bad level 9" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_presets_and_filters():
+    assert len(scan_list("bu3dfe")) == 2500
+    assert len(scan_list("bu3dfe", subset="eval")) == 700
+    assert len(scan_list("tiny")) == 50
+    assert len(scan_list("tiny", expressions=["NE", "HA"], levels=[2, 4])) == 2 * (1 + 2)

@@ -121,6 +121,7 @@ def cmd_batch(args) -> int:
     from tqdm import tqdm
 
     from .errors import FacecorrError
+    from .threads import spawn_context
     from .fileio import write_json
 
     src, dst = Path(args.input_dir), Path(args.output_dir)
@@ -141,7 +142,7 @@ def cmd_batch(args) -> int:
         jobs.append((s, out_mesh, out_json, png, args.units))
     rows = []
     failures_path = dst / "failures.json"
-    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
+    with ProcessPoolExecutor(max_workers=max(1, args.workers), mp_context=spawn_context()) as pool:
         futures = [pool.submit(_batch_one, j) for j in jobs]
         for fut in tqdm(as_completed(futures), total=len(futures), desc="registering", unit="scan"):
             rows.append(fut.result())

@@ -101,6 +101,8 @@ def evaluate_registration(db_dir, out_dir, *, use_gt_landmarks=False, workers=2,
     """Run and report the registration evaluation; returns the per-scan rows."""
     from concurrent.futures import ProcessPoolExecutor
 
+    from .threads import spawn_context
+
     from tqdm import tqdm
 
     from .errors import FacecorrError
@@ -115,7 +117,7 @@ def evaluate_registration(db_dir, out_dir, *, use_gt_landmarks=False, workers=2,
     if workers <= 1:
         rows = [_eval_one(j) for j in tqdm(jobs, desc="evaluating", unit="scan")]
     else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=spawn_context()) as pool:
             rows = list(tqdm(pool.map(_eval_one, jobs), total=len(jobs), desc="evaluating", unit="scan"))
     md = write_reports(rows, Path(out_dir))
     print(md)

@@ -240,6 +240,8 @@ def _scanner_config(crop, config, scanner_options) -> ScannerConfig:
     bad = set(scanner_options) - set(asdict(cfg))
     if bad:
         raise SynthError(f"unknown scanner option(s): {', '.join(sorted(bad))}")
+    if crop == "none" and "spacing" not in scanner_options and config is None:
+        scanner_options = {**scanner_options, "spacing": 1.5}  # a whole head at 1 mm: ~125k vertices; 1.5 mm: ~55k
     return replace(cfg, crop=crop, **scanner_options)
 
 

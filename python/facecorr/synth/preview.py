@@ -52,7 +52,7 @@ def contact_sheet(records, png_path, title=None):
     n = len(records)
     ncol = min(n, 7)
     nrow = (n + ncol - 1) // ncol
-    fig, axes = plt.subplots(nrow, ncol, figsize=(2.4 * ncol, 2.9 * nrow), squeeze=False)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 3.7 * nrow), squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
     for ax, rec in zip(axes.ravel(), records):

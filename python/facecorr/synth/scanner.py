@@ -15,8 +15,8 @@ How a scan is made from a deformed ICT head (model frame, mm):
    pose relative to the scanner). A grid point is kept when at least one camera sees it: not
    occluded (depth test) and not at grazing incidence (cos > ``min_cos``). This leaves the
    natural holes: nostrils, under the chin and nose, behind the ears, occluded mouth interior.
-3. **Cropping** — ``crop="face"``: inside a sphere of random radius (``crop_radius`` range)
-   around a point just below the nose tip, and in front of a plane just before the ears, like
+3. **Cropping** — ``crop="face"``: inside an ellipsoid (semi-axes r, 1.15 r, r; r random in
+   ``crop_radius``) centred ~30 mm behind the nose tip, and in front of a plane just before the ears, like
    BU-3DFE's cropped face models; ``crop="none"``: everything the cameras see (raw scan).
 4. **Triangulation** — the grid's cells become two triangles each (split along the shorter
    diagonal); a triangle is kept when its three corners are kept and no edge is longer than
@@ -46,6 +46,10 @@ from ..raster import rasterize
 from .model import ICTModel, vertex_normals
 
 
+#: Vertical elongation of the face crop ellipsoid.
+CROP_ELONGATION = 1.15
+
+
 @dataclass(frozen=True)
 class ScannerConfig:
     """Parameters of the simulated scanner (mm, degrees). Ranges are (low, high) uniform."""
@@ -54,7 +58,7 @@ class ScannerConfig:
     ref_radius: float = 100.0
     axis_z: float = 10.0
     crop: str = "face"
-    crop_radius: tuple = (88.0, 100.0)
+    crop_radius: tuple = (85.0, 95.0)
     crop_margin: float = 8.0  # mm of skin kept beyond the outermost eyebrow / eye point
     min_cos: float = 0.17
     landmark_snap_mm: float = 3.0  # max distance of a model landmark to the scan surface to be 'on the scan'
@@ -268,13 +272,16 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
     info = {}
     if cfg.crop == "face":
         r_crop = rng.uniform(*cfg.crop_radius)
-        centre = nose_tip + np.array([rng.uniform(-3, 3), -rng.uniform(8.0, 16.0), -rng.uniform(5.0, 15.0)])
-        # BU-3DFE's cropped faces always contain the eyebrows and the eyes with some skin
-        # around them: grow the sphere if a brow or eye point would be near its edge.
-        brow_eye = V[lm[17:48]]
-        r_crop = max(r_crop, float(np.linalg.norm(brow_eye - centre, axis=1).max()) + cfg.crop_margin)
+        # an ellipsoid (1.15x taller than wide) centred ~30 mm behind the nose tip: keeps the
+        # whole brows and the chin of an open mouth, drops the ears and most of the forehead
+        centre = nose_tip + np.array([rng.uniform(-3, 3), rng.uniform(-4.0, 4.0), -rng.uniform(25.0, 35.0)])
+        # BU-3DFE's cropped faces always contain the eyebrows and the eyes with some skin around
+        # them: grow the ellipsoid if a brow or eye point would be near its edge.
+        brow_eye = np.linalg.norm((V[lm[17:48]] - centre) / np.array([1.0, CROP_ELONGATION, 1.0]), axis=1)
+        r_crop = max(r_crop, float(brow_eye.max()) + cfg.crop_margin)
         ear_z = 0.5 * (V[lm[0], 2] + V[lm[16], 2]) - rng.uniform(0.0, 10.0)
-        keep &= (np.linalg.norm(P - centre, axis=1) < r_crop) & (P[:, 2] > ear_z)
+        dist = np.linalg.norm((P - centre) / np.array([1.0, CROP_ELONGATION, 1.0]), axis=1)
+        keep &= (dist < r_crop) & (P[:, 2] > ear_z)
         info.update(crop_radius_mm=float(r_crop), crop_plane_z_mm=float(ear_z))
 
     # --- 4. triangulate the grid ------------------------------------------------------------
@@ -345,7 +352,7 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
     limit[list(LANDMARK_IBUG68)] = max(cfg.landmark_snap_mm, cfg.landmark8_snap_mm)
     snap_dist, ib_snapped = closest_point_on_mesh(ib, P_out, F, limit.max() + 2.0 * cfg.spacing)
     on_scan = snap_dist <= limit
-    info["landmark_snap_max_mm"] = round(float(snap_dist[list(LANDMARK_IBUG68)].max()), 4)
+    info["landmark_snap_mm"] = snap_dist[list(LANDMARK_IBUG68)].round(4).tolist()
 
     # --- 6. rigid pose ---------------------------------------------------------------------
     R = random_rotation(rng, cfg.yaw, cfg.pitch, cfg.roll, cfg.uniform_rotation)

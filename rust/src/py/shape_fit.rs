@@ -1,7 +1,238 @@
-//! Bindings placeholder; filled in by the owner of this module.
+//! Bindings of `shape_fit` (paper §4.3): the whole fit, and the energy + gradient for tests.
 
+use numpy::ndarray::{Array2, Array3, ArrayView2};
+use numpy::{IntoPyArray, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
-pub fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+use super::util::{run, value_err};
+use crate::shape_fit::{self as core_fit, Adjacency, Correspondences, ScanTarget, ShapeFitOptions, Weights};
+
+fn points3(a: &ArrayView2<f64>, name: &str) -> PyResult<Vec<[f64; 3]>> {
+    if a.ncols() != 3 {
+        return Err(value_err(format!("{name} must have shape (N, 3), got ({}, {})", a.nrows(), a.ncols())));
+    }
+    if a.iter().any(|v| !v.is_finite()) {
+        return Err(value_err(format!("{name} contains NaN or infinite values")));
+    }
+    Ok(a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect())
+}
+
+fn index_rows<const K: usize>(a: &ArrayView2<i64>, n: usize, name: &str) -> PyResult<Vec<[usize; K]>> {
+    if a.ncols() != K {
+        return Err(value_err(format!("{name} must have shape (M, {K}), got ({}, {})", a.nrows(), a.ncols())));
+    }
+    if let Some(bad) = a.iter().find(|&&v| v < 0 || v as usize >= n) {
+        return Err(value_err(format!("{name} holds index {bad} outside [0, {})", n)));
+    }
+    Ok(a.rows().into_iter().map(|r| std::array::from_fn(|k| r[k] as usize)).collect())
+}
+
+fn anchors(ids: &PyReadonlyArray1<i64>, pts: &PyReadonlyArray2<f64>, n: usize) -> PyResult<Vec<(usize, [f64; 3])>> {
+    let ids = ids.as_array();
+    let p = points3(&pts.as_array(), "anchor_points")?;
+    if ids.len() != p.len() {
+        return Err(value_err(format!("anchor_ids has {} entries but anchor_points {} rows", ids.len(), p.len())));
+    }
+    if let Some(bad) = ids.iter().find(|&&v| v < 0 || v as usize >= n) {
+        return Err(value_err(format!("anchor_ids holds vertex id {bad} outside [0, {n})")));
+    }
+    Ok(ids.iter().zip(p).map(|(&i, q)| (i as usize, q)).collect())
+}
+
+fn nonneg(v: f64, name: &str) -> PyResult<f64> {
+    if !(v >= 0.0) || v.is_nan() {
+        return Err(value_err(format!("{name} must be >= 0, got {v}")));
+    }
+    Ok(v)
+}
+
+/// Energy and gradient of the shape fit for given transforms and fixed correspondences.
+/// Returns (total, e_data, e_smooth, e_rigid, e_landmark, grad (N, 12)); parts unweighted.
+#[pyfunction]
+#[pyo3(signature = (x, points, edges, targets, normals, weights, anchor_ids, anchor_points, w_data, w_smooth, w_rigid, w_landmark))]
+#[allow(clippy::too_many_arguments)]
+fn shape_fit_energy<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray2<'py, f64>,
+    points: PyReadonlyArray2<'py, f64>,
+    edges: PyReadonlyArray2<'py, i64>,
+    targets: PyReadonlyArray2<'py, f64>,
+    normals: PyReadonlyArray2<'py, f64>,
+    weights: PyReadonlyArray1<'py, f64>,
+    anchor_ids: PyReadonlyArray1<'py, i64>,
+    anchor_points: PyReadonlyArray2<'py, f64>,
+    w_data: f64,
+    w_smooth: f64,
+    w_rigid: f64,
+    w_landmark: f64,
+) -> PyResult<(f64, f64, f64, f64, f64, Bound<'py, PyArray2<f64>>)> {
+    let p = points3(&points.as_array(), "points")?;
+    let n = p.len();
+    let xa = x.as_array();
+    if xa.dim() != (n, 12) {
+        return Err(value_err(format!("x must have shape ({n}, 12), got {:?}", xa.dim())));
+    }
+    if xa.iter().any(|v| !v.is_finite()) {
+        return Err(value_err("x contains NaN or infinite values"));
+    }
+    let xv: Vec<f64> = xa.iter().copied().collect();
+    let e = index_rows::<2>(&edges.as_array(), n, "edges")?;
+    let t = points3(&targets.as_array(), "targets")?;
+    let nm = points3(&normals.as_array(), "normals")?;
+    let w: Vec<f64> = weights.as_array().to_vec();
+    if t.len() != n || nm.len() != n || w.len() != n {
+        return Err(value_err(format!("targets, normals and weights must have {n} rows")));
+    }
+    if w.iter().any(|v| !v.is_finite()) {
+        return Err(value_err("weights contains NaN or infinite values"));
+    }
+    let mut anchor = vec![None; n];
+    for (i, q) in anchors(&anchor_ids, &anchor_points, n)? {
+        anchor[i] = Some(q);
+    }
+    let wts = Weights {
+        data: nonneg(w_data, "w_data")?,
+        smooth: nonneg(w_smooth, "w_smooth")?,
+        rigid: nonneg(w_rigid, "w_rigid")?,
+        landmark: nonneg(w_landmark, "w_landmark")?,
+    };
+    let (parts, g) = run(py, "shape_fit_energy", move || {
+        let adj = Adjacency::from_edges(n, &e);
+        let corr = Correspondences { target: t, normal: nm, weight: w, anchor };
+        let mut g = vec![0.0; 12 * n];
+        let parts = core_fit::energy_gradient(&xv, &p, &adj, &corr, wts, &mut g);
+        (parts, g)
+    })?;
+    let g = Array2::from_shape_vec((n, 12), g).expect("shape").into_pyarray(py);
+    Ok((parts.total, parts.data, parts.smooth, parts.rigid, parts.landmark, g))
+}
+
+/// The shape fit of §4.3. Returns (vertices (N, 3), transforms (N, 3, 4), solves: list of dicts).
+#[pyfunction]
+#[pyo3(signature = (template_vertices, template_faces, scan_vertices, scan_normals, scan_is_boundary,
+    anchor_ids, anchor_points, *, w_data=1.0, w_smooth=20000.0, w_rigid=10.0, relax_factor=0.5,
+    n_levels=12, max_icp=5, relax_tol=1e-3, max_iter=1000, rel_tol=1e-4, memory=10,
+    normal_angle_deg=80.0, max_distance=f64::INFINITY, reject_boundary=true, w_landmark=0.0,
+    template_weight=None, precondition=true))]
+#[allow(clippy::too_many_arguments)]
+fn shape_fit<'py>(
+    py: Python<'py>,
+    template_vertices: PyReadonlyArray2<'py, f64>,
+    template_faces: PyReadonlyArray2<'py, i64>,
+    scan_vertices: PyReadonlyArray2<'py, f64>,
+    scan_normals: PyReadonlyArray2<'py, f64>,
+    scan_is_boundary: PyReadonlyArray1<'py, bool>,
+    anchor_ids: PyReadonlyArray1<'py, i64>,
+    anchor_points: PyReadonlyArray2<'py, f64>,
+    w_data: f64,
+    w_smooth: f64,
+    w_rigid: f64,
+    relax_factor: f64,
+    n_levels: usize,
+    max_icp: usize,
+    relax_tol: f64,
+    max_iter: usize,
+    rel_tol: f64,
+    memory: usize,
+    normal_angle_deg: f64,
+    max_distance: f64,
+    reject_boundary: bool,
+    w_landmark: f64,
+    template_weight: Option<PyReadonlyArray1<'py, f64>>,
+    precondition: bool,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>, Vec<Bound<'py, PyDict>>)> {
+    let tv = points3(&template_vertices.as_array(), "template_vertices")?;
+    let n = tv.len();
+    if n == 0 {
+        return Err(value_err("template_vertices is empty"));
+    }
+    let tf = index_rows::<3>(&template_faces.as_array(), n, "template_faces")?;
+    if tf.is_empty() {
+        return Err(value_err("template_faces is empty"));
+    }
+    let sv = points3(&scan_vertices.as_array(), "scan_vertices")?;
+    if sv.is_empty() {
+        return Err(value_err("scan_vertices is empty"));
+    }
+    let sn = points3(&scan_normals.as_array(), "scan_normals")?;
+    let sb: Vec<bool> = scan_is_boundary.as_array().to_vec();
+    if sn.len() != sv.len() || sb.len() != sv.len() {
+        return Err(value_err(format!("scan_normals and scan_is_boundary must have {} rows", sv.len())));
+    }
+    let anch = anchors(&anchor_ids, &anchor_points, n)?;
+    if !(relax_factor > 0.0 && relax_factor <= 1.0) {
+        return Err(value_err(format!("relax_factor must be in (0, 1], got {relax_factor}")));
+    }
+    if n_levels == 0 || max_icp == 0 || max_iter == 0 || memory == 0 {
+        return Err(value_err("n_levels, max_icp, max_iter and memory must be >= 1"));
+    }
+    if !(normal_angle_deg > 0.0 && normal_angle_deg <= 180.0) {
+        return Err(value_err(format!("normal_angle_deg must be in (0, 180], got {normal_angle_deg}")));
+    }
+    if !(max_distance > 0.0) {
+        return Err(value_err(format!("max_distance must be > 0, got {max_distance}")));
+    }
+    let template_weight = match template_weight {
+        None => Vec::new(),
+        Some(a) => {
+            let w = a.as_array().to_vec();
+            if w.len() != n {
+                return Err(value_err(format!("template_weight must have {n} entries, got {}", w.len())));
+            }
+            if w.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+                return Err(value_err("template_weight must be finite and >= 0"));
+            }
+            w
+        }
+    };
+    let opts = ShapeFitOptions {
+        template_weight,
+        precondition,
+        w_data: nonneg(w_data, "w_data")?,
+        w_smooth: nonneg(w_smooth, "w_smooth")?,
+        w_rigid: nonneg(w_rigid, "w_rigid")?,
+        relax_factor,
+        n_levels,
+        max_icp,
+        relax_tol: nonneg(relax_tol, "relax_tol")?,
+        max_iter,
+        rel_tol: nonneg(rel_tol, "rel_tol")?,
+        memory,
+        normal_angle_deg,
+        max_distance,
+        reject_boundary,
+        w_landmark: nonneg(w_landmark, "w_landmark")?,
+    };
+    let res = run(py, "shape_fit", move || {
+        let scan = ScanTarget::new(sv, sn, sb);
+        core_fit::fit(&tv, &tf, &scan, &anch, &opts)
+    })?;
+    let verts = Array2::from_shape_vec((n, 3), res.vertices.iter().flatten().copied().collect()).expect("shape").into_pyarray(py);
+    let tr = Array3::from_shape_vec((n, 3, 4), res.transforms.iter().flatten().copied().collect()).expect("shape").into_pyarray(py);
+    let mut solves = Vec::with_capacity(res.solves.len());
+    for s in &res.solves {
+        let d = PyDict::new(py);
+        d.set_item("level", s.level)?;
+        d.set_item("w_smooth", s.w_smooth)?;
+        d.set_item("w_rigid", s.w_rigid)?;
+        d.set_item("energy", s.energy)?;
+        d.set_item("e_data", s.e_data)?;
+        d.set_item("e_smooth", s.e_smooth)?;
+        d.set_item("e_rigid", s.e_rigid)?;
+        d.set_item("e_landmark", s.e_landmark)?;
+        d.set_item("n_valid", s.n_valid)?;
+        d.set_item("iterations", s.iterations)?;
+        d.set_item("evaluations", s.evaluations)?;
+        d.set_item("seconds_correspond", s.seconds_correspond)?;
+        d.set_item("seconds_solve", s.seconds_solve)?;
+        solves.push(d);
+    }
+    Ok((verts, tr, solves))
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(shape_fit_energy, m)?)?;
+    m.add_function(wrap_pyfunction!(shape_fit, m)?)?;
     Ok(())
 }
