@@ -36,9 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FacecorrError
+from ..io import save_mesh
 from ..names import LANDMARK_NAMES
 from .expressions import EXPRESSION_CODES, expression_weights
-from .io import write_ply
 from .model import deform, load_ict, sample_identity
 from .scanner import ScannerConfig, scan_head
 
@@ -113,7 +113,7 @@ def _job(args):
     stem = scan_stem(subject, expression, level)
     d = Path(out_dir) / subject
     d.mkdir(parents=True, exist_ok=True)
-    write_ply(d / f"{stem}.ply", scan.vertices, scan.faces)
+    save_mesh(d / f"{stem}.ply", (scan.vertices, scan.faces))  # binary PLY, float64 mm
     with open(d / f"{stem}_dense.npz", "wb") as fh:
         np.savez(
             fh, tri=scan.tri.astype(np.int32), bary=scan.bary.astype(np.float32),
@@ -197,17 +197,9 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
     -------
     list of index records (dicts with relative paths, as written to ``index.json``).
     """
-    if crop not in ("face", "none"):
-        raise SynthError(f"unknown crop {crop!r}; expected 'face' or 'none'")
     if int(workers) < 1:
         raise SynthError("workers must be at least 1")
-    cfg = config or ScannerConfig()
-    bad = set(scanner_options) - set(asdict(cfg))
-    if bad:
-        raise SynthError(f"unknown scanner option(s): {', '.join(sorted(bad))}")
-    if crop == "none" and "spacing" not in scanner_options and config is None:
-        scanner_options["spacing"] = 1.5  # a whole head at 1 mm would be ~125k vertices; 1.5 mm gives ~55k
-    cfg = replace(cfg, crop=crop, **scanner_options)
+    cfg = _scanner_config(crop, config, scanner_options)
     jobs = scan_list(preset, subjects, expressions, levels, subset)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -216,7 +208,6 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
 
     bar = tqdm(total=len(args), desc="synth", unit="scan", disable=not progress)
     if int(workers) == 1:
-        _init_worker_env_only = os.environ.get("FACECORR_THREADS")
         results = []
         for a in args:
             results.append(_job(a))
@@ -240,6 +231,63 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
         json.dump(index, fh, indent=1)
         fh.write("\n")
     return records
+
+
+def _scanner_config(crop, config, scanner_options) -> ScannerConfig:
+    if crop not in ("face", "none"):
+        raise SynthError(f"unknown crop {crop!r}; expected 'face' or 'none'")
+    cfg = config or ScannerConfig()
+    bad = set(scanner_options) - set(asdict(cfg))
+    if bad:
+        raise SynthError(f"unknown scanner option(s): {', '.join(sorted(bad))}")
+    if crop == "none" and "spacing" not in scanner_options and config is None:
+        scanner_options = {**scanner_options, "spacing": 1.5}  # a whole head at 1 mm: ~125k vertices; 1.5 mm: ~55k
+    return replace(cfg, crop=crop, **scanner_options)
+
+
+def generate_scan(out_dir, subject=1, expression="HA", level=4, seed=0, crop="face",
+                  config: ScannerConfig | None = None, **scanner_options) -> dict:
+    """Simulate one scan and write it like a database entry (for demos and quick checks).
+
+    Writes ``out_dir/F0001/F0001_HA04_F3D.ply`` + ``.json`` + ``_dense.npz`` (no ``index.json``);
+    the scan is byte-identical to the same scan of :func:`generate` with the same seed and options.
+
+    Parameters
+    ----------
+    out_dir : path, created if needed.
+    subject : int (1-based position in the database order F0001, M0001, F0002, ...) or a name
+        like "F0001".
+    expression : "NE", "AN", "DI", "FE", "HA", "SA" or "SU".
+    level : 1..4 (ignored and set to 0 for "NE").
+    seed : int, the database seed.
+    crop : "face" or "none"; ``config`` / ``scanner_options`` as in :func:`generate`.
+
+    Returns
+    -------
+    dict like an :func:`load_index` record: ``scan``, ``gt``, ``dense`` (absolute paths),
+    ``subject``, ``expression``, ``level``, ``split``.
+    """
+    if isinstance(subject, str):
+        _parse_subject(subject)
+        name = subject
+    else:
+        if isinstance(subject, bool) or not isinstance(subject, (int, np.integer)) or subject < 1:
+            raise SynthError(f"bad subject {subject!r}: a 1-based number or a name like 'F0001'")
+        name = subject_name(int(subject) - 1)
+    if expression not in EXPRESSION_CODES:
+        raise SynthError(f"unknown expression {expression!r}; expected one of {', '.join(EXPRESSION_CODES)}")
+    if expression == "NE":
+        level = 0
+    elif isinstance(level, bool) or not isinstance(level, (int, np.integer)) or not 1 <= level <= 4:
+        raise SynthError(f"bad level {level!r}: levels are 1..4")
+    cfg = _scanner_config(crop, config, scanner_options)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _job((str(out), int(seed), name, expression, int(level), cfg))
+    stem = scan_stem(name, expression, int(level))
+    d = (out / name).resolve()
+    return {"scan": str(d / f"{stem}.ply"), "gt": str(d / f"{stem}.json"), "dense": str(d / f"{stem}_dense.npz"),
+            "subject": name, "expression": expression, "level": int(level), "split": subject_split(name)}
 
 
 def load_index(db_dir):

@@ -47,7 +47,7 @@ def contact_sheet(records, png_path, title=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .io import read_ply
+    from ..io import load_mesh
 
     n = len(records)
     ncol = min(n, 7)
@@ -56,7 +56,8 @@ def contact_sheet(records, png_path, title=None):
     for ax in axes.ravel():
         ax.axis("off")
     for ax, rec in zip(axes.ravel(), records):
-        V, F = read_ply(rec["scan"])
+        m = load_mesh(rec["scan"], units="mm", merge_duplicates=False)
+        V, F = m.vertices, m.faces
         with open(rec["gt"]) as fh:
             gt = json.load(fh)
         pose = np.load(rec["dense"])["pose"]

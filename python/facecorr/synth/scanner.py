@@ -24,7 +24,12 @@ How a scan is made from a deformed ICT head (model frame, mm):
    pieces are dropped. The connectivity has nothing to do with the ICT mesh.
 5. **Sensor noise** — Gaussian along the viewing ray of the best camera (sigma drawn per scan
    from ``noise_sigma``), plus rare spikes (``spike_fraction``, ``spike_amplitude`` mm).
-6. **Pose** — a random rigid transform (yaw/pitch/roll uniform within the configured ranges,
+6. **Landmarks** — each iBUG-68 point is moved to the nearest point of the noise-free scan
+   surface, as an annotator clicks the visible eye corner when the model's corner vertex lies in
+   a fold (squint); a point more than ``landmark_snap_mm`` away is not on the scan (cropped jaw
+   line, inner lips hidden by closed lips); ``landmark8_snap_mm`` for the 8 landmarks, which are
+   always annotated. The crop sphere always contains the brows and eyes.
+7. **Pose** — a random rigid transform (yaw/pitch/roll uniform within the configured ranges,
    or a uniform random rotation) and translation maps the model frame to the scan frame.
 """
 
@@ -54,7 +59,10 @@ class ScannerConfig:
     axis_z: float = 10.0
     crop: str = "face"
     crop_radius: tuple = (85.0, 95.0)
+    crop_margin: float = 8.0  # mm of skin kept beyond the outermost eyebrow / eye point
     min_cos: float = 0.17
+    landmark_snap_mm: float = 3.0  # max distance of a model landmark to the scan surface to be 'on the scan'
+    landmark8_snap_mm: float = 6.0  # the same for the 8 landmarks of the method
     max_edge_factor: float = 3.5
     min_piece: int = 150
     noise_sigma: tuple = (0.1, 0.3)
@@ -122,33 +130,55 @@ def random_rotation(rng, yaw, pitch, roll, uniform=False):
     return rot_y(a[0]) @ rot_x(a[1]) @ rot_z(a[2])
 
 
-def closest_points_on_mesh(V, F, pts, k=12):
-    """Closest points (K, 3) on the mesh (V, F) to ``pts`` (K, 3), searched among the triangles
-    incident to the ``k`` nearest vertices (exact for points within about a triangle of the
-    surface, which is how the landmarks are used)."""
+def closest_point_on_triangles(p: np.ndarray, tri: np.ndarray):
+    """Closest points of triangles ``tri`` (K, 3, 3) to points ``p`` (K, 3), pairwise (mm).
+
+    The projection onto the plane when it falls inside the triangle, else the nearest point of
+    the three edges. Returns (distances (K,), closest points (K, 3))."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    n = np.cross(b - a, c - a)
+    nn = np.maximum(np.einsum("kd,kd->k", n, n), 1e-300)
+    h = np.einsum("kd,kd->k", p - a, n) / nn
+    best_q = p - h[:, None] * n  # projection onto the plane
+    # (near-)degenerate triangles have no usable plane: only their edges count
+    longest2 = np.max([np.einsum("kd,kd->k", e, e) for e in (b - a, c - b, a - c)], axis=0)
+    inside = nn > 1e-16 * longest2**2
+    for u, v in ((a, b), (b, c), (c, a)):
+        inside &= np.einsum("kd,kd->k", np.cross(v - u, best_q - u), n) >= 0
+    best = np.where(inside, np.linalg.norm(p - best_q, axis=1), np.inf)
+    for u, v in ((a, b), (b, c), (c, a)):
+        e = v - u
+        t = np.clip(np.einsum("kd,kd->k", p - u, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0.0, 1.0)
+        q = u + t[:, None] * e
+        d = np.linalg.norm(p - q, axis=1)
+        better = d < best
+        best = np.where(better, d, best)
+        best_q = np.where(better[:, None], q, best_q)
+    return best, best_q
+
+
+def closest_point_on_mesh(points: np.ndarray, V: np.ndarray, F: np.ndarray, search_radius: float):
+    """Closest point of the mesh (V, F) to each of ``points`` (K, 3) (mm), looking only at
+    triangles with a vertex within ``search_radius`` of the point.
+
+    Returns (distances (K,), closest points (K, 3)); inf and NaN where no triangle is that near."""
     from scipy.spatial import cKDTree
 
-    _, nv = cKDTree(V).query(pts, k=k)
+    dist = np.full(len(points), np.inf)
+    closest = np.full((len(points), 3), np.nan)
+    if len(F) == 0:
+        return dist, closest
     order = np.argsort(F.ravel(), kind="stable")
     starts = np.searchsorted(F.ravel()[order], np.arange(len(V) + 1))
-    out = np.empty_like(pts)
-    for i, p in enumerate(pts):
-        cand = np.unique(np.concatenate([order[starts[v]:starts[v + 1]] // 3 for v in nv[i]]))
-        a, b, c = (V[F[cand, j]] for j in range(3))
-        n = np.cross(b - a, c - a)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        q = p - np.einsum("kd,kd->k", p - a, n)[:, None] * n
-        inside = np.ones(len(cand), bool)
-        for u, w in ((a, b), (b, c), (c, a)):
-            inside &= np.einsum("kd,kd->k", np.cross(w - u, q - u), n) >= 0
-        cands = [q[inside]]
-        for u, w in ((a, b), (b, c), (c, a)):
-            e = w - u
-            t = np.clip(np.einsum("kd,kd->k", p - u, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0, 1)
-            cands.append(u + t[:, None] * e)
-        allc = np.concatenate(cands)
-        out[i] = allc[np.argmin(np.linalg.norm(allc - p, axis=1))]
-    return out
+    for k, ids in enumerate(cKDTree(V).query_ball_point(points, search_radius)):
+        if not ids:
+            continue
+        faces = np.unique(np.concatenate([order[starts[i]:starts[i + 1]] // 3 for i in ids]))
+        if len(faces):
+            d, q = closest_point_on_triangles(np.repeat(points[k][None], len(faces), 0), V[F[faces]])
+            j = int(np.argmin(d))
+            dist[k], closest[k] = d[j], q[j]
+    return dist, closest
 
 
 def _cylinder_coords(p, axis_z):
@@ -245,6 +275,10 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
         # an ellipsoid (1.15x taller than wide) centred ~30 mm behind the nose tip: keeps the
         # whole brows and the chin of an open mouth, drops the ears and most of the forehead
         centre = nose_tip + np.array([rng.uniform(-3, 3), rng.uniform(-4.0, 4.0), -rng.uniform(25.0, 35.0)])
+        # BU-3DFE's cropped faces always contain the eyebrows and the eyes with some skin around
+        # them: grow the ellipsoid if a brow or eye point would be near its edge.
+        brow_eye = np.linalg.norm((V[lm[17:48]] - centre) / np.array([1.0, CROP_ELONGATION, 1.0]), axis=1)
+        r_crop = max(r_crop, float(brow_eye.max()) + cfg.crop_margin)
         ear_z = 0.5 * (V[lm[0], 2] + V[lm[16], 2]) - rng.uniform(0.0, 10.0)
         dist = np.linalg.norm((P - centre) / np.array([1.0, CROP_ELONGATION, 1.0]), axis=1)
         keep &= (dist < r_crop) & (P[:, 2] > ear_z)
@@ -306,21 +340,19 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
         amp = rng.uniform(*cfg.spike_amplitude, n_spikes) * rng.choice([-1.0, 1.0], n_spikes)
         noisy[idx] += amp[:, None] * vdir[idx]
 
-    # --- ground truth on the scan: which iBUG-68 points are on it ---------------------------
+    # --- ground truth on the scan: the iBUG-68 points as an annotator would click them --------
+    # Each model landmark is moved to the nearest point of the noise-free scan surface (a point
+    # in a fold -- an eye corner of a squinting face -- to the visible corner next to it). It is
+    # on the scan when that point is within ``landmark_snap_mm``; farther means cropped, unseen
+    # or hidden behind another surface (e.g. an inner lip point of a closed mouth).
     ib = V[lm]
-    th_l, r_l = _cylinder_coords(ib, cfg.axis_z)
-    lu, lv = (th_l - th0) / d_theta, (y0 - ib[:, 1]) / cfg.spacing
-    final_vid = np.full((H, W), -1, dtype=np.int64)
-    final_vid[rows[src], cols[src]] = np.arange(len(src))
-    on_scan = np.zeros(68, bool)
-    for k in range(68):
-        c0, r0 = int(np.floor(lu[k])), int(np.floor(lv[k]))
-        if not (0 <= r0 < H - 1 and 0 <= c0 < W - 1):
-            continue
-        corner_ids = final_vid[r0:r0 + 2, c0:c0 + 2]
-        if (corner_ids < 0).any():
-            continue
-        on_scan[k] = True  # its grid cell is on the scan (and see the snap test below)
+    # The 8 landmarks of the method are always annotated (a deep fold -- the subnasale under a
+    # wrinkled nose in disgust -- moves them farther: up to ``landmark8_snap_mm``).
+    limit = np.full(68, cfg.landmark_snap_mm)
+    limit[list(LANDMARK_IBUG68)] = max(cfg.landmark_snap_mm, cfg.landmark8_snap_mm)
+    snap_dist, ib_snapped = closest_point_on_mesh(ib, P_out, F, limit.max() + 2.0 * cfg.spacing)
+    on_scan = snap_dist <= limit
+    info["landmark_snap_mm"] = snap_dist[list(LANDMARK_IBUG68)].round(4).tolist()
 
     # --- 6. rigid pose ---------------------------------------------------------------------
     R = random_rotation(rng, cfg.yaw, cfg.pitch, cfg.roll, cfg.uniform_rotation)
@@ -330,20 +362,13 @@ def scan_head(model: ICTModel, V: np.ndarray, cfg: ScannerConfig, rng: np.random
     def posed(x):
         return x @ R.T + t
 
-    # Ground-truth points as an annotator clicks them: on the (noise-free) scan surface. The ICT
-    # vertex itself can sit in a crease the 1 mm grid bridges (eye corners: up to ~2 mm), so it
-    # is snapped to the closest point of the scan; the shift is recorded in ``info``.
-    snap = closest_points_on_mesh(P_out, F, ib)
-    shift = np.linalg.norm(snap - ib, axis=1)
-    # a point hidden under the surface (inner lips of a closed mouth) is far from it: not on the scan
-    on_scan &= shift < 2.5
-    ib_scan = posed(snap)
+    ib_gt = np.where(on_scan[:, None], ib_snapped, ib)
+    ib_scan = posed(ib_gt)
     ib_scan[~on_scan] = np.nan
-    info["landmark_snap_mm"] = shift[list(LANDMARK_IBUG68)].round(4).tolist()
     info.update(noise_sigma_mm=float(sigma), n_spikes=n_spikes, spacing_mm=cfg.spacing,
                 head_jitter_deg=np.degrees(jit).round(3).tolist())
     return Scan(
         vertices=posed(noisy), faces=F, tri=tri_out.astype(np.int32), bary=bary_out,
-        clean=posed(P_out), pose=pose, landmarks=posed(snap[list(LANDMARK_IBUG68)]),
+        clean=posed(P_out), pose=pose, landmarks=posed(ib_gt[list(LANDMARK_IBUG68)]),
         ibug68=ib_scan, info=info,
     )
