@@ -238,11 +238,17 @@ def test_perfect_registration_of_a_synthetic_scan(tmp_path, t):
     pose = gt["dense"]["pose"]
     perfect = head[t.ict_vertex] @ pose[:, :3].T + pose[:, 3]
     dense, mask = evaluate.dense_error(perfect, gt["dense"], t, return_mask=True)
-    assert mask.mean() > 0.7 and dense.max() < 1e-3  # float32 storage only
-    for e in evaluate.region_errors(perfect, gt["ibug68"], t).values():
-        assert len(e) and e.max() < 1e-3
+    # the BU-3DFE-like crop reaches past the template (forehead, cheeks), so ~60-70 % of the scan is measured
+    assert mask.mean() > 0.5 and dense.max() < 1e-3  # float32 storage only
+    # iBUG/landmark ground truth is the model point snapped onto the scanned (resampled, ~1 mm
+    # grid) surface, as an annotator clicks it: the model vertex is off by the chord error only
+    # (a fold, e.g. a squinting eye contour, is deeper: the snap is capped at 3 mm for iBUG points
+    # and 6 mm for the 8 landmarks, ScannerConfig.landmark_snap_mm / landmark8_snap_mm).
+    regions = evaluate.region_errors(perfect, gt["ibug68"], t)
+    assert all(len(e) and e.max() <= 3.0 + 1e-6 for e in regions.values())
+    assert np.median(np.concatenate(list(regions.values()))) < 0.5
     lm = evaluate.landmark_errors({n: perfect[i] for n, i in t.landmarks.items()}, gt["landmarks"])
-    assert max(lm.values()) < 1e-3
+    assert max(lm.values()) <= 6.0 + 1e-6 and np.median(list(lm.values())) < 0.5
     # the rest pose, rigidly placed, is millimetres off (the subject's identity and expression)
     assert evaluate.dense_error(t.vertices @ pose[:, :3].T + pose[:, 3], gt["dense"], t).mean() > 2.0
     scan = load_mesh(rec["scan"])
