@@ -64,3 +64,19 @@ def test_register_nan_mesh(tmp_path):
     r = run_cli("register", scan, "-o", tmp_path / "o.ply")
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "o.ply").exists()
+
+
+def test_atomic_write_leaves_usual_permissions_and_nothing_on_failure(tmp_path):
+    import os
+
+    from facecorr.fileio import atomic_path, write_json
+
+    write_json(tmp_path / "a.json", {"x": 1})
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (tmp_path / "a.json").stat().st_mode & 0o777 == 0o666 & ~umask
+    with pytest.raises(RuntimeError):
+        with atomic_path(tmp_path / "b.ply") as tmp:
+            tmp.write_text("partial")
+            raise RuntimeError("writer failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]
