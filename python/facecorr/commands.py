@@ -158,33 +158,48 @@ def cmd_batch(args) -> int:
     return 2 if failed else 0
 
 
+def _demo_report(result, gt, label) -> None:
+    """Print a registration's errors against the synthetic ground truth."""
+    from . import evaluate
+
+    lm_err = {k: float(((result.landmarks[k] - gt["landmarks"][k]) ** 2).sum() ** 0.5) for k in result.landmarks}
+    regions = evaluate.region_errors(result.vertices, gt["ibug68"])
+    dense = evaluate.dense_error(result.vertices, gt["dense"])
+    print(f"      {label}:")
+    print(f"        landmarks used: mean error {sum(lm_err.values()) / len(lm_err):.2f} mm, max {max(lm_err.values()):.2f} mm")
+    print("        region mean errors [mm]: " + ", ".join(f"{k} {e.mean():.2f}" for k, e in regions.items()))
+    print(f"        dense correspondence error {dense.mean():.2f} mm over {len(dense)} scan points; "
+          f"MHD {result.mhd:.3f} mm; {result.timings_s['total']:.2f} s")
+
+
 def cmd_demo(args) -> int:
-    """Synthesise one open-mouth scan in a random pose and register it, comparing with ground truth."""
+    """Synthesise one scan in a random pose and register it fully automatically; as the scan is
+    synthetic, also register it guided by its true landmarks and compare both with the truth."""
     from . import evaluate
     from .io import load_mesh
+    from .names import LANDMARK_NAMES
     from .pipeline import correspond, plot_registration
     from .synth import generate_scan
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"[1/3] synthesising a scan (subject F0001, happiness level 4, random pose) into {out}/scan")
+    print(f"[1/4] synthesising a scan (subject F0001, happiness level 4, random pose) into {out}/scan")
     rec = generate_scan(out / "scan", subject=1, expression="HA", level=4, seed=args.seed)
     mesh = load_mesh(rec["scan"])
+    gt = evaluate.load_ground_truth(rec["gt"])
     print(f"      {mesh.n_vertices} vertices, {mesh.n_faces} triangles")
-    print("[2/3] predicting landmarks and registering the template")
+    print("[2/4] fully automatic: predicting landmarks, registering the template")
     result = correspond(mesh)
     result.save(out / "registered.ply", out / "result.json")
-    plot_registration(mesh, result, out / "registration.png", title="facecorr demo")
-    print("[3/3] comparing with the ground truth")
-    gt = evaluate.load_ground_truth(rec["gt"])
-    lm_err = {k: float(((result.landmarks[k] - gt["landmarks"][k]) ** 2).sum() ** 0.5) for k in result.landmarks}
-    regions = evaluate.region_errors(result.vertices, gt["ibug68"])
-    print(f"      landmark error mean {sum(lm_err.values()) / len(lm_err):.2f} mm, max {max(lm_err.values()):.2f} mm")
-    for name, e in regions.items():
-        print(f"      {name:>14}: mean {e.mean():.2f} mm")
-    dense = evaluate.dense_error(result.vertices, gt["dense"])
-    print(f"      dense correspondence error: mean {dense.mean():.2f} mm over {len(dense)} scan points")
-    print(f"      MHD {result.mhd:.3f} mm; time {result.timings_s['total']:.2f} s "
-          f"(landmarks {result.timings_s['landmarks']:.2f} s)")
-    print(f"wrote {out}/registered.ply, {out}/result.json, {out}/registration.png")
+    plot_registration(mesh, result, out / "registration.png", title="facecorr demo: fully automatic")
+    for f in result.flags:
+        print(f"      warning: {f}")
+    print("[3/4] the same scan guided by its ground-truth landmarks (registration stage alone)")
+    guided = correspond(mesh, landmarks={k: gt["landmarks"][k] for k in LANDMARK_NAMES})
+    guided.save(out / "registered_gt_landmarks.ply", out / "result_gt_landmarks.json")
+    plot_registration(mesh, guided, out / "registration_gt_landmarks.png", title="facecorr demo: true landmarks")
+    print("[4/4] errors against the ground truth")
+    _demo_report(result, gt, "fully automatic")
+    _demo_report(guided, gt, "with the true landmarks")
+    print(f"wrote {out}/registered.ply, result.json, registration.png (and *_gt_landmarks.*)")
     return 0

@@ -157,7 +157,7 @@ def plot_registration(mesh: Mesh, result: Result, path, template=None, title=Non
     fig, axes = plt.subplots(1, 2, figsize=(10, 5.5))
     lm = np.array([result.landmarks[k] for k in LANDMARK_NAMES]) @ r.T + t
     draw_mesh(axes[0], scan_v, mesh.faces[fkeep], points=lm)
-    axes[0].set_title("scan (predicted landmarks)")
+    axes[0].set_title("scan (red: the landmarks used)")
     sm = draw_mesh(axes[1], reg_v, result.faces, values=p2p, cmap="turbo", vmin=0.0, vmax=1.0)
     axes[1].set_title(f"registered template, MHD {result.mhd:.2f} mm")
     fig.colorbar(sm, ax=axes[1], fraction=0.04, label="point-to-plane distance to scan [mm] (clamped at 1)")
