@@ -80,3 +80,67 @@ def test_atomic_write_leaves_usual_permissions_and_nothing_on_failure(tmp_path):
             tmp.write_text("partial")
             raise RuntimeError("writer failed")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]
+
+
+@pytest.fixture(scope="module")
+def one_scan(tmp_path_factory):
+    from facecorr.synth import generate_scan
+
+    return generate_scan(tmp_path_factory.mktemp("scan"), subject=1, expression="NE", level=0, seed=5)
+
+
+def test_batch_survives_a_bad_scan_and_resumes(tmp_path, one_scan):
+    """A broken file is reported (exit 2) while the good scan is registered; a rerun redoes nothing."""
+    import shutil
+
+    src = tmp_path / "in"
+    src.mkdir()
+    shutil.copy(one_scan["scan"], src / "good.ply")
+    (src / "broken.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\n")
+    out = tmp_path / "out"
+    r = run_cli("batch", src, out, "--workers", "1")
+    assert r.returncode == 2, r.stderr
+    assert "1 registered" in r.stdout and "1 failed" in r.stdout
+    assert (out / "good.ply").exists() and (out / "good.json").exists()
+    assert not (out / "broken.ply").exists()
+    failures = json.loads((out / "failures.json").read_text())
+    assert [f["scan"].endswith("broken.ply") for f in failures] == [True]
+    data = json.loads((out / "good.json").read_text())
+    assert set(data) >= {"landmarks", "expression_weights", "mhd", "timings_s"}
+    import trimesh
+
+    from facecorr.template import load_template
+
+    reg = trimesh.load(out / "good.ply", process=False)
+    assert len(reg.vertices) == load_template().n_vertices
+    before = (out / "good.ply").stat().st_mtime_ns
+    r2 = run_cli("batch", src, out, "--workers", "1")
+    assert "1 already done" in r2.stdout and (out / "good.ply").stat().st_mtime_ns == before
+
+
+def test_register_with_given_landmarks_in_other_units(tmp_path, one_scan):
+    """--landmarks in cm on a scan saved in cm: the result comes back in the scan's frame and units."""
+    from facecorr import evaluate
+    from facecorr.io import load_mesh, save_mesh
+
+    gt = evaluate.load_ground_truth(one_scan["gt"], load_dense=False)
+    mesh = load_mesh(one_scan["scan"])
+    scan_cm = tmp_path / "scan_cm.ply"
+    save_mesh(scan_cm, (mesh.vertices / 10.0, mesh.faces))
+    lm = tmp_path / "lm.json"
+    lm.write_text(json.dumps({"units": "cm", "landmarks": {k: (v / 10.0).tolist() for k, v in gt["landmarks"].items()}}))
+    r = run_cli("register", scan_cm, "-o", tmp_path / "reg.ply", "--json", tmp_path / "reg.json", "--landmarks", lm)
+    assert r.returncode == 0, r.stderr
+    res = json.loads((tmp_path / "reg.json").read_text())
+    assert res["units"] == "cm"
+    err = [np.linalg.norm(np.array(res["landmarks_registered"][k]) * 10 - gt["landmarks"][k]) for k in gt["landmarks"]]
+    assert np.median(err) < 3.0, err  # mm: the registered template's landmarks land on the true ones
+
+
+def test_demo_writes_its_outputs(tmp_path):
+    r = run_cli("demo", "--out", tmp_path / "demo")
+    assert r.returncode == 0, r.stderr
+    for name in ("registered.ply", "result.json", "registration.png", "registered_gt_landmarks.ply",
+                 "result_gt_landmarks.json", "registration_gt_landmarks.png"):
+        assert (tmp_path / "demo" / name).stat().st_size > 0, name
+    assert "fully automatic:" in r.stdout and "with the true landmarks:" in r.stdout
