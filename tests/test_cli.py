@@ -144,3 +144,13 @@ def test_demo_writes_its_outputs(tmp_path):
                  "result_gt_landmarks.json", "registration_gt_landmarks.png"):
         assert (tmp_path / "demo" / name).stat().st_size > 0, name
     assert "fully automatic:" in r.stdout and "with the true landmarks:" in r.stdout
+
+
+def test_process_map_keeps_order_in_spawned_workers():
+    import math
+
+    from facecorr.threads import process_map
+
+    jobs = [0.5 * k for k in range(7)]
+    assert process_map(math.sqrt, jobs, workers=2, progress=False) == [math.sqrt(j) for j in jobs]
+    assert process_map(math.sqrt, jobs, workers=1, progress=False) == [math.sqrt(j) for j in jobs]

@@ -99,14 +99,9 @@ def write_reports(rows, out_dir: Path) -> str:
 
 def evaluate_registration(db_dir, out_dir, *, use_gt_landmarks=False, workers=2, limit=None, split="test"):
     """Run and report the registration evaluation; returns the per-scan rows."""
-    from concurrent.futures import ProcessPoolExecutor
-
-    from .threads import spawn_context
-
-    from tqdm import tqdm
-
     from .errors import FacecorrError
     from .synth import load_index
+    from .threads import process_map
 
     records = select_eval_records(load_index(db_dir), split=split)
     if limit:
@@ -114,11 +109,7 @@ def evaluate_registration(db_dir, out_dir, *, use_gt_landmarks=False, workers=2,
     if not records:
         raise FacecorrError(f"{db_dir}: no {split} scans at the evaluation level")
     jobs = [(r, use_gt_landmarks) for r in records]
-    if workers <= 1:
-        rows = [_eval_one(j) for j in tqdm(jobs, desc="evaluating", unit="scan")]
-    else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=spawn_context()) as pool:
-            rows = list(tqdm(pool.map(_eval_one, jobs), total=len(jobs), desc="evaluating", unit="scan"))
+    rows = process_map(_eval_one, jobs, workers=workers, desc="evaluating")
     md = write_reports(rows, Path(out_dir))
     print(md)
     return rows

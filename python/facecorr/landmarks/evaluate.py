@@ -103,7 +103,7 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
 
     ``rotate``: every scan is first turned by a uniformly random rotation of SO(3) (seeded per scan).
     """
-    from tqdm import tqdm
+    from ..threads import process_map
 
     from ..fileio import atomic_path, write_json
     from ..registration_eval import select_eval_records
@@ -115,20 +115,7 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     if limit:
         recs = recs[:limit]
     jobs = [(r, model, (1000 + k) if rotate else None) for k, r in enumerate(recs)]
-    rows = []
-    bar = tqdm(total=len(jobs), desc="eval landmarks", unit="scan", disable=not progress)
-    if workers > 1 and len(jobs) > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=workers, mp_context=_spawn()) as ex:
-            for r in ex.map(_eval_one, jobs):
-                rows.append(r)
-                bar.update()
-    else:
-        for j in jobs:
-            rows.append(_eval_one(j))
-            bar.update()
-    bar.close()
+    rows = process_map(_eval_one, jobs, workers=workers, desc="eval landmarks", progress=progress)
     table = landmark_table(rows)
     md = markdown(table, rows)
     out = Path(out_dir)
@@ -141,11 +128,3 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
             for t in table))
     write_json(out / "landmarks_per_scan.json", rows)
     return table, rows, md
-
-
-def _spawn():
-    """Process-pool context: spawn, not fork (a forked child inherits the parent's Rust thread
-    pool in a broken state and can deadlock)."""
-    import multiprocessing
-
-    return multiprocessing.get_context("spawn")

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import FacecorrError
 from ..names import LANDMARK_NAMES
+from ..threads import process_map
 from .alignment import kabsch
 from .classify import fit_classifier
 from .gaussian import fit_gaussian
@@ -166,22 +167,7 @@ def train(db_dir, out_path, neutral_only: bool = False, workers: int = 2, radii=
     p = dict(DEFAULT_PARAMS, **(params or {}))
     icp_points, icp_normal = template_pose_points()
     jobs = [(r, pa, edges, icp_points, np.asarray(radii, float), p) for r in recs]
-    results = []
-    from tqdm import tqdm
-
-    bar = tqdm(total=len(jobs), desc="train", unit="scan", disable=not progress)
-    if workers > 1 and len(jobs) > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=workers, mp_context=_spawn()) as ex:
-            for res in ex.map(_work, jobs):
-                results.append(res)
-                bar.update()
-    else:
-        for j in jobs:
-            results.append(_work(j))
-            bar.update()
-    bar.close()
+    results = process_map(_work, jobs, workers=workers, desc="train", progress=progress)
     errors = [r["error"] for r in results if "error" in r]
     ok = [r for r in results if "error" not in r]
     if len(ok) < 3:
@@ -216,11 +202,3 @@ def train(db_dir, out_path, neutral_only: bool = False, workers: int = 2, radii=
     model.save(out_path)
     model.source = str(out_path)
     return model
-
-
-def _spawn():
-    """Process-pool context: spawn, not fork (a forked child inherits the parent's Rust thread
-    pool in a broken state and can deadlock)."""
-    import multiprocessing
-
-    return multiprocessing.get_context("spawn")
