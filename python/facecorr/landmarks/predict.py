@@ -55,6 +55,9 @@ NOSE_TIP, SUBNASAL, R_SUBALARE, L_SUBALARE = 6, 7, 4, 5
 
 #: Prediction settings not stored in the model (they do not depend on training).
 PREDICT_DEFAULTS = {
+    "start_search": "protrusion", # "protrusion" (default) or "paper" (umbilics + FPPCA + nose search)
+    "n_tip_candidates": 4,        # protrusion maxima tried as nose tips
+    "protrusion_radius": 25.0,    # mm, scale of the protrusion measure
     "circle_spacing": 3.0,        # mm, subsampling of the geodesic search circles
     "candidate_spacing": 1.5,     # mm, finest subsampling of the coarse BP search regions
     "refine_spacing": 1.0,        # mm, candidates of the fine BP pass
@@ -71,7 +74,7 @@ PREDICT_DEFAULTS = {
 #: The wider start search used when a first prediction fails its own checks (graph off the
 #: surface, poor face fit). Measured on 10 such failures of the bu3dfe test split: 6 corrected,
 #: ~10 s per retry (BENCHMARKS.md, "Landmarks"); kept out of the first pass for speed.
-RETRY_OVERRIDES = {"n_starts": 8, "sweep_tips": 4, "n_tips": 3}
+RETRY_OVERRIDES = {"n_starts": 8, "sweep_tips": 4, "n_tips": 3, "n_tip_candidates": 10, "sweep_angles": 16}
 
 #: Flags that mean "the whole graph is probably misplaced" (31 of 34 such failures flagged, no
 #: false alarm on 36 good scans, BENCHMARKS.md).
@@ -391,12 +394,10 @@ def predict_landmarks(mesh, model=None, **options) -> "LandmarkResult":
     return best
 
 
-def _predict_once(mesh, model, opts) -> "LandmarkResult":
-    """One prediction with fixed settings (see :func:`predict_landmarks`)."""
-    timer = _Timer()
-    name = mesh.source or "scan"
-    with timer("prepare"):
-        feat = ScanFeatures(mesh.vertices, mesh.faces, model.radii)
+def _paper_pose(mesh, feat, model, opts, timer, name, flags):
+    """Paper §3.4-3.6 start: umbilics, FPPCA labels, nose-first search, graph alignment in both
+    5/6 labellings, then the template ICP from those alignments (:func:`_pose`). Returns
+    (R, t, trimmed rms mm, debug dict); appends reasons for doubt to ``flags``."""
     with timer("umbilics"):
         from ..curvature import umbilics
 
@@ -408,7 +409,6 @@ def _predict_once(mesh, model, opts) -> "LandmarkResult":
     # Start hypotheses (paper: the umbilic labelled nose tip nearest its medoid). The nose circle
     # of radius r around either the nose tip or the subnasal holds both, so we also start from
     # the best subnasal umbilics; every resulting nose hypothesis seeds the pose search.
-    flags = []
     starts = []
     for cls in (NOSE_TIP, SUBNASAL):
         order = np.argsort(dist[:, cls])
@@ -433,6 +433,56 @@ def _predict_once(mesh, model, opts) -> "LandmarkResult":
         r, t, rms, d_f = _pose(feat, model, list(hyps), opts)
     for fl in hyps.values():
         flags += fl
+    return r, t, rms, dict(nose_hypotheses=list(hyps), d_f=d_f, n_umbilics=len(umb), starts=starts)
+
+
+def _template_tip_plane_normal(model, radius: float) -> np.ndarray:
+    """Unit normal (3,) of the least-squares plane of the template's ICP points within
+    ``radius`` mm of Pa's nose tip: the template-side twin of the scan's protrusion plane."""
+    pts = model.icp_points
+    near = pts[np.linalg.norm(pts - model.graph_points[NOSE_TIP], axis=1) < radius]
+    if len(near) < 3:
+        return model.icp_tip_normal
+    _, vec = np.linalg.eigh(np.cov(near.T))
+    n = vec[:, 0]
+    return n if n @ model.icp_tip_normal >= 0 else -n
+
+
+def _protrusion_pose(feat, model, opts, timer, name):
+    """Default start: the ``n_tip_candidates`` most protruding points (:mod:`.protrusion`), each
+    with a sweep of ``sweep_angles`` rotations about its plane normal, then the template ICP;
+    the pose with the smallest trimmed residual wins. Returns (R, t, rms mm, debug dict)."""
+    from .pose import fit_poses, normal_sweep_starts
+    from .protrusion import nose_tip_candidates
+
+    radius = float(opts["protrusion_radius"])
+    with timer("starts"):
+        tips = nose_tip_candidates(feat.vertices, feat.normals, k=int(opts["n_tip_candidates"]), radius=radius)
+        if not tips:
+            raise LandmarkError(f"{name}: no protruding point to start from (not a face surface?)")
+        tpl_n = _template_tip_plane_normal(model, radius)
+        starts = []
+        for vid, _, n in tips:
+            starts += normal_sweep_starts(model.graph_points[NOSE_TIP], tpl_n, feat.vertices[vid], n,
+                                          int(opts["sweep_angles"]))
+    with timer("pose"):
+        (r, t, rms), = fit_poses(model.icp_points, feat.tree, starts, n_best=1, normals=feat.normals)
+    return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips])
+
+
+def _predict_once(mesh, model, opts) -> "LandmarkResult":
+    """One prediction with fixed settings (see :func:`predict_landmarks`)."""
+    timer = _Timer()
+    name = mesh.source or "scan"
+    with timer("prepare"):
+        feat = ScanFeatures(mesh.vertices, mesh.faces, model.radii)
+    flags = []
+    if opts["start_search"] == "protrusion":
+        r, t, rms, start_debug = _protrusion_pose(feat, model, opts, timer, name)
+    elif opts["start_search"] == "paper":
+        r, t, rms, start_debug = _paper_pose(mesh, feat, model, opts, timer, name, flags)
+    else:
+        raise ValueError(f"start_search must be 'protrusion' or 'paper', got {opts['start_search']!r}")
     try:
         best = _localise(feat, model, (r, t), opts, timer)
     except ValueError as e:
@@ -468,8 +518,7 @@ def _predict_once(mesh, model, opts) -> "LandmarkResult":
     span = np.linalg.norm(pred[0] - pred[3]) / max(np.linalg.norm(tpl[0] - tpl[3]), 1e-9)
     if not 0.6 < span < 1.5:
         flags.append(f"implausible_eye_span:{span:.2f}x template")
-    debug = dict(nose_hypotheses=list(hyps), d_f=d_f, pose=(r, t), icp_rms=rms, bp_score=res.score,
-                 bp_converged=res.converged, n_umbilics=len(umb), starts=starts,
+    debug = dict(start_debug, pose=(r, t), icp_rms=rms, bp_score=res.score, bp_converged=res.converged,
                  n_candidates=[len(c) for c in best["cands"]], rel_stress=best["rel_stress"])
     timings = dict(timer.t)
     timings["total"] = float(sum(timer.t.values()))

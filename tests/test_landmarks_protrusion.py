@@ -1,0 +1,66 @@
+"""Protrusion nose-tip candidates: reference check, analytic cases, pose invariance."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from facecorr.landmarks.protrusion import ball_protrusion, nose_tip_candidates
+
+
+def _grid(n=61, half=60.0, bump=20.0, sigma2=150.0):
+    """Height field z = bump * exp(-(x^2+y^2)/sigma2) on a (n x n) grid: points, normals (up)."""
+    x, y = np.meshgrid(np.linspace(-half, half, n), np.linspace(-half, half, n))
+    z = bump * np.exp(-(x**2 + y**2) / sigma2) + 6 * np.exp(-((x - 35) ** 2 + (y + 30) ** 2) / 60)
+    p = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
+    gx = -2 * x / sigma2 * bump * np.exp(-(x**2 + y**2) / sigma2)
+    gy = -2 * y / sigma2 * bump * np.exp(-(x**2 + y**2) / sigma2)
+    n_ = np.column_stack([-gx.ravel(), -gy.ravel(), np.ones(x.size)])
+    return p, n_ / np.linalg.norm(n_, axis=1, keepdims=True)
+
+
+def test_matches_numpy_reference():
+    p, n = _grid(n=31)
+    h, pn, cnt = ball_protrusion(p, n, 19.7)  # not a multiple of the 4 mm grid: no ties at the radius
+    rng = np.random.default_rng(0)
+    for i in rng.choice(len(p), 25, replace=False):
+        q = p[np.linalg.norm(p - p[i], axis=1) <= 19.7]
+        c = q.mean(axis=0)
+        w, v = np.linalg.eigh(np.cov(q.T, bias=True))
+        nn = v[:, 0] if v[:, 0] @ n[i] >= 0 else -v[:, 0]
+        assert cnt[i] == len(q)
+        np.testing.assert_allclose(pn[i], nn, atol=1e-6)
+        assert h[i] == pytest.approx((p[i] - c) @ nn, abs=1e-6)
+
+
+def test_plane_has_no_protrusion():
+    x, y = np.meshgrid(np.linspace(0, 50, 26), np.linspace(0, 50, 26))
+    p = np.column_stack([x.ravel(), y.ravel(), 0.3 * x.ravel() - 0.2 * y.ravel()])
+    n = np.tile(np.array([-0.3, 0.2, 1.0]) / np.linalg.norm([-0.3, 0.2, 1.0]), (len(p), 1))
+    h, pn, _ = ball_protrusion(p, n, 12.0)
+    np.testing.assert_allclose(h, 0.0, atol=1e-8)
+    np.testing.assert_allclose(pn, n, atol=1e-8)
+
+
+def test_best_candidate_is_the_apex_and_second_is_the_small_bump():
+    p, n = _grid()
+    c = nose_tip_candidates(p, n, k=2, radius=25.0, spacing=0.0, min_separation=20.0)
+    assert np.linalg.norm(p[c[0][0]] - [0, 0, 20]) < 3.0
+    assert c[0][1] > c[1][1] > 0
+    assert np.linalg.norm(p[c[1][0]][:2] - [35, -30]) < 6.0
+    assert abs(c[0][2] @ [0, 0, 1]) > 0.99
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_invariant_to_pose(seed):
+    p, n = _grid(n=41)
+    r = Rotation.random(random_state=seed).as_matrix()
+    t = np.random.default_rng(seed).normal(0, 100, 3)
+    h0, _, _ = ball_protrusion(p, n, 25.0)
+    h1, pn1, _ = ball_protrusion(p @ r.T + t, n @ r.T, 25.0)
+    np.testing.assert_allclose(h1, h0, atol=1e-6)
+    c0 = nose_tip_candidates(p, n, k=1, spacing=0.0)[0]
+    c1 = nose_tip_candidates(p @ r.T + t, n @ r.T, k=1, spacing=0.0)[0]
+    assert c0[0] == c1[0]
