@@ -131,3 +131,29 @@ def fit_poses(points: np.ndarray, tree, starts, n_best: int = 3, min_angle_deg: 
         r, t, rms, _ = trimmed_icp(points, tree, r, t, iters=fine_iters, keep=keep, normals=normals)
         out.append((r, t, rms))
     return out
+
+
+def similarity_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters: int = 30,
+                   keep: float = 0.8, tol: float = 1e-5):
+    """Trimmed point-to-point ICP with a uniform scale (Umeyama steps) from a rigid pose.
+
+    Faces differ in size by several percent, which moves the outer eye corners by 2-3 mm under
+    a rigid template; the scale absorbs that. Returns (R (3, 3), scale, t (3,), trimmed RMS mm)
+    for ``x -> scale * R x + t``.
+    """
+    from ..registration.affine import similarity_umeyama
+
+    scan = tree.data
+    n_keep = max(6, int(keep * len(points)))
+    s, prev, rms = 1.0, np.inf, np.inf
+    for _ in range(iters):
+        d, idx = tree.query(s * points @ r.T + t)
+        order = np.argsort(d)[:n_keep]
+        rms = float(np.sqrt(np.mean(np.asarray(d)[order] ** 2)))
+        if prev - rms < tol * max(rms, 1e-9):
+            break
+        prev = rms
+        m = similarity_umeyama(points[order], scan[np.asarray(idx)[order]])
+        s = float(np.cbrt(np.linalg.det(m[:, :3])))
+        r, t = m[:, :3] / s, m[:, 3]
+    return r, s, t, rms

@@ -58,6 +58,8 @@ PREDICT_DEFAULTS = {
     "start_search": "protrusion", # "protrusion" (default) or "paper" (umbilics + FPPCA + nose search)
     "n_tip_candidates": 4,        # protrusion maxima tried as nose tips
     "protrusion_radius": 25.0,    # mm, scale of the protrusion measure
+    "localise": "patch",          # "patch" (default: local template fits) or "bp" (paper: FP + BP)
+    "patch_radius": 20.0,         # mm, template patch around each landmark
     "circle_spacing": 3.0,        # mm, subsampling of the geodesic search circles
     "candidate_spacing": 1.5,     # mm, finest subsampling of the coarse BP search regions
     "refine_spacing": 1.0,        # mm, candidates of the fine BP pass
@@ -394,6 +396,85 @@ def predict_landmarks(mesh, model=None, **options) -> "LandmarkResult":
     return best
 
 
+def _bp_outputs(feat, model, best, opts):
+    """Positions, confidences, vertex ids, posed graph and debug of a BP localisation.
+
+    Confidence per landmark: the BP max-marginal probability mass within ``confidence_radius``
+    of the chosen vertex times the node-fit factor (module docstring)."""
+    res = best["bp"]
+    positions, confidence, vids = {}, {}, {}
+    s_dim = len(model.radii)
+    for i, nm in enumerate(LANDMARK_NAMES):
+        c = best["cands"][i]
+        v = int(c[res.labels[i]])
+        vids[nm] = v
+        positions[nm] = feat.vertices[v].copy()
+        b = res.beliefs[i]
+        p = np.exp(b - logsumexp(b)) if np.isfinite(b).any() else np.full(len(b), 1.0 / len(b))
+        near = np.linalg.norm(feat.vertices[c] - feat.vertices[v], axis=1) <= opts["confidence_radius"]
+        m2 = float(mahalanobis2(best["fps"][i][res.labels[i]], model.node_mean[i], model.node_cov[i]))
+        fit = min(1.0, 2.0 * float(chi2.sf(m2, s_dim)))
+        confidence[nm] = float(np.clip(p[near].sum() * fit, 0.0, 1.0))
+    debug = dict(bp_score=res.score, bp_converged=res.converged, n_candidates=[len(c) for c in best["cands"]],
+                 rel_stress=best["rel_stress"])
+    return positions, confidence, vids, best["expected"], debug
+
+
+_PATCH_CACHE: dict = {}
+
+
+def _template_patches(model, radius: float) -> list:
+    """Per landmark, the packaged template's vertices (P_i, 3) within ``radius`` mm of its Pa
+    point (template frame, mm). Raises LandmarkError if the model's Pa is not this template's."""
+    key = (model.graph_points.tobytes(), float(radius))
+    if key not in _PATCH_CACHE:
+        from ..template import load_template
+
+        tpl = load_template()
+        lm = tpl.vertices[tpl.landmark_ids]
+        if lm.shape != model.graph_points.shape or np.abs(lm - model.graph_points).max() > 1e-3:
+            raise LandmarkError("the model's landmark graph is not the packaged template's: "
+                                "use localise='bp' with this model")
+        _PATCH_CACHE[key] = [tpl.vertices[np.linalg.norm(tpl.vertices - p, axis=1) < radius] for p in lm]
+    return _PATCH_CACHE[key]
+
+
+def _patch_localise(feat, model, pose, opts):
+    """Default localisation: the template's own surface around each landmark, fitted locally.
+
+    1. the rigid pose gains a uniform scale (:func:`.pose.similarity_icp` of the upper face);
+    2. per landmark, the template patch within ``patch_radius`` mm of it (scaled) is fitted by
+       trimmed point-to-plane ICP from that pose, and the landmark (plus its learned mean
+       offset) is carried along; the nearest scan vertex is the answer.
+    The patch holds the shape of the eye corner, ala or nose tip over ~20 mm, far more than an
+    8-number FP descriptor, and the local rigid fit absorbs the expression and identity
+    differences the global pose leaves (measured in BENCHMARKS.md, "Landmarks").
+
+    Confidence: ``min(1, 2 chi2.sf(m2, 3))`` of the patch's displacement from the global
+    prediction under the learned offset covariance (a patch that had to travel far is doubtful)
+    times ``min(1, (2 mm / patch rms)^2)`` (a patch that does not fit the surface is doubtful).
+    """
+    from .pose import similarity_icp, trimmed_icp
+
+    r, t = pose
+    r, scale, t, _ = similarity_icp(model.icp_points, feat.tree, r, t)
+    patches = _template_patches(model, float(opts["patch_radius"]))
+    positions, confidence, vids, rms_all, expected = {}, {}, {}, [], []
+    for i, nm in enumerate(LANDMARK_NAMES):
+        local = scale * (model.graph_points[i] + model.offset_mean[i])
+        expected.append(local @ r.T + t)
+        rp, tp, prms, _ = trimmed_icp(scale * patches[i], feat.tree, r, t, iters=20, keep=0.9,
+                                      normals=feat.normals)
+        x = local @ rp.T + tp
+        _, v = feat.tree.query(x[None])
+        v = int(np.asarray(v).ravel()[0])
+        vids[nm], positions[nm] = v, feat.vertices[v].copy()
+        m2 = float(mahalanobis2((x - expected[-1]) @ r / scale, np.zeros(3), model.offset_cov[i]))
+        confidence[nm] = float(np.clip(min(1.0, 2.0 * float(chi2.sf(m2, 3))) * min(1.0, (2.0 / max(prms, 1e-9)) ** 2), 0, 1))
+        rms_all.append(prms)
+    return positions, confidence, vids, np.array(expected), dict(scale=scale, patch_rms=rms_all)
+
+
 def _paper_pose(mesh, feat, model, opts, timer, name, flags):
     """Paper §3.4-3.6 start: umbilics, FPPCA labels, nose-first search, graph alignment in both
     5/6 labellings, then the template ICP from those alignments (:func:`_pose`). Returns
@@ -483,33 +564,27 @@ def _predict_once(mesh, model, opts) -> "LandmarkResult":
         r, t, rms, start_debug = _paper_pose(mesh, feat, model, opts, timer, name, flags)
     else:
         raise ValueError(f"start_search must be 'protrusion' or 'paper', got {opts['start_search']!r}")
-    try:
-        best = _localise(feat, model, (r, t), opts, timer)
-    except ValueError as e:
-        raise LandmarkError(f"{name}: landmark search failed ({e})") from None
+    if opts["localise"] == "patch":
+        with timer("patches"):
+            positions, confidence, vids, expected, loc_debug = _patch_localise(feat, model, (r, t), opts)
+    elif opts["localise"] == "bp":
+        try:
+            best = _localise(feat, model, (r, t), opts, timer)
+        except ValueError as e:
+            raise LandmarkError(f"{name}: landmark search failed ({e})") from None
+        positions, confidence, vids, expected, loc_debug = _bp_outputs(feat, model, best, opts)
+    else:
+        raise ValueError(f"localise must be 'patch' or 'bp', got {opts['localise']!r}")
     ref_rms = float(model.param("mean_icp_rms") or 1.0)
     if rms > 3.0 * max(ref_rms, 0.5):
         flags.append(f"poor_face_fit:icp_rms={rms:.1f}mm (training {ref_rms:.1f}mm)")
-    res = best["bp"]
     flags = list(dict.fromkeys(flags))
-    positions, confidence, vids = {}, {}, {}
-    s_dim = len(model.radii)
-    for i, nm in enumerate(LANDMARK_NAMES):
-        c = best["cands"][i]
-        v = int(c[res.labels[i]])
-        vids[nm] = v
-        positions[nm] = feat.vertices[v].copy()
-        b = res.beliefs[i]
-        p = np.exp(b - logsumexp(b)) if np.isfinite(b).any() else np.full(len(b), 1.0 / len(b))
-        near = np.linalg.norm(feat.vertices[c] - feat.vertices[v], axis=1) <= opts["confidence_radius"]
-        m2 = float(mahalanobis2(best["fps"][i][res.labels[i]], model.node_mean[i], model.node_cov[i]))
-        fit = min(1.0, 2.0 * float(chi2.sf(m2, s_dim)))
-        confidence[nm] = float(np.clip(p[near].sum() * fit, 0.0, 1.0))
+    for nm in LANDMARK_NAMES:
         if confidence[nm] < opts["low_confidence"]:
             flags.append(f"low_confidence:{nm}")
     # Geometric plausibility: the posed Pa must lie on the surface (a half face or a hole over
     # the nose leaves part of it in the air).
-    d_surf, _ = feat.tree.query(best["expected"])
+    d_surf, _ = feat.tree.query(expected)
     if np.max(d_surf) > 8.0:
         off = [LANDMARK_NAMES[k] for k in np.flatnonzero(np.asarray(d_surf) > 8.0)]
         flags.append(f"graph_off_surface:{','.join(off)} (half face or missing region?)")
@@ -518,8 +593,7 @@ def _predict_once(mesh, model, opts) -> "LandmarkResult":
     span = np.linalg.norm(pred[0] - pred[3]) / max(np.linalg.norm(tpl[0] - tpl[3]), 1e-9)
     if not 0.6 < span < 1.5:
         flags.append(f"implausible_eye_span:{span:.2f}x template")
-    debug = dict(start_debug, pose=(r, t), icp_rms=rms, bp_score=res.score, bp_converged=res.converged,
-                 n_candidates=[len(c) for c in best["cands"]], rel_stress=best["rel_stress"])
+    debug = dict(start_debug, **loc_debug, pose=(r, t), icp_rms=rms)
     timings = dict(timer.t)
     timings["total"] = float(sum(timer.t.values()))
     return LandmarkResult(positions=positions, confidence=confidence, flags=flags, timings_s=timings,
