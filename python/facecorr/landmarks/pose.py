@@ -141,6 +141,7 @@ def similarity_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters
     a rigid template; the scale absorbs that. Returns (R (3, 3), scale, t (3,), trimmed RMS mm)
     for ``x -> scale * R x + t``.
     """
+    from ..errors import RegistrationError
     from ..registration.affine import similarity_umeyama
 
     scan = tree.data
@@ -153,7 +154,10 @@ def similarity_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters
         if prev - rms < tol * max(rms, 1e-9):
             break
         prev = rms
-        m = similarity_umeyama(points[order], scan[np.asarray(idx)[order]])
+        try:
+            m = similarity_umeyama(points[order], scan[np.asarray(idx)[order]])
+        except RegistrationError:  # matches collapsed onto a line (not a face): keep the last pose
+            break
         s = float(np.cbrt(np.linalg.det(m[:, :3])))
         r, t = m[:, :3] / s, m[:, 3]
     return r, s, t, rms

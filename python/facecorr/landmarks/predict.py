@@ -58,8 +58,10 @@ PREDICT_DEFAULTS = {
     "start_search": "protrusion", # "protrusion" (default) or "paper" (umbilics + FPPCA + nose search)
     "n_tip_candidates": 4,        # protrusion maxima tried as nose tips
     "protrusion_radius": 25.0,    # mm, scale of the protrusion measure
+    "min_protrusion": 4.0,        # mm, refuse a scan whose highest protrusion is lower (no nose)
     "localise": "patch",          # "patch" (default: local template fits) or "bp" (paper: FP + BP)
-    "patch_radius": 20.0,         # mm, template patch around each landmark
+    "patch_radius": 20.0,         # mm, template patch around each landmark but the nose tip
+    "tip_patch_radius": 25.0,     # mm, the nose tip's (its 20 mm patch slides along the ridge)
     "circle_spacing": 3.0,        # mm, subsampling of the geodesic search circles
     "candidate_spacing": 1.5,     # mm, finest subsampling of the coarse BP search regions
     "refine_spacing": 1.0,        # mm, candidates of the fine BP pass
@@ -435,8 +437,8 @@ def _template_patches(model, radius: float) -> list:
         if lm.shape != model.graph_points.shape or np.abs(lm - model.graph_points).max() > 1e-3:
             raise LandmarkError("the model's landmark graph is not the packaged template's: "
                                 "use localise='bp' with this model")
-        _PATCH_CACHE[key] = [tpl.vertices[np.linalg.norm(tpl.vertices - p, axis=1) < radius] for p in lm]
-    return _PATCH_CACHE[key]
+        _PATCH_CACHE[key] = tuple(tpl.vertices[np.linalg.norm(tpl.vertices - p, axis=1) < radius] for p in lm)
+    return list(_PATCH_CACHE[key])
 
 
 def _patch_localise(feat, model, pose, opts):
@@ -458,7 +460,10 @@ def _patch_localise(feat, model, pose, opts):
 
     r, t = pose
     r, scale, t, _ = similarity_icp(model.icp_points, feat.tree, r, t)
+    flags = [] if 0.75 < scale < 1.33 else [f"implausible_face_scale:{scale:.2f}x template"]
+    scale = float(np.clip(scale, 0.75, 1.33))
     patches = _template_patches(model, float(opts["patch_radius"]))
+    patches[NOSE_TIP] = _template_patches(model, float(opts["tip_patch_radius"]))[NOSE_TIP]
     positions, confidence, vids, rms_all, expected = {}, {}, {}, [], []
     for i, nm in enumerate(LANDMARK_NAMES):
         local = scale * (model.graph_points[i] + model.offset_mean[i])
@@ -472,7 +477,7 @@ def _patch_localise(feat, model, pose, opts):
         m2 = float(mahalanobis2((x - expected[-1]) @ r / scale, np.zeros(3), model.offset_cov[i]))
         confidence[nm] = float(np.clip(min(1.0, 2.0 * float(chi2.sf(m2, 3))) * min(1.0, (2.0 / max(prms, 1e-9)) ** 2), 0, 1))
         rms_all.append(prms)
-    return positions, confidence, vids, np.array(expected), dict(scale=scale, patch_rms=rms_all)
+    return positions, confidence, vids, np.array(expected), dict(scale=scale, patch_rms=rms_all, flags=flags)
 
 
 def _paper_pose(mesh, feat, model, opts, timer, name, flags):
@@ -539,8 +544,10 @@ def _protrusion_pose(feat, model, opts, timer, name):
     radius = float(opts["protrusion_radius"])
     with timer("starts"):
         tips = nose_tip_candidates(feat.vertices, feat.normals, k=int(opts["n_tip_candidates"]), radius=radius)
-        if not tips:
-            raise LandmarkError(f"{name}: no protruding point to start from (not a face surface?)")
+        if not tips or tips[0][1] < float(opts["min_protrusion"]):
+            top = f"{tips[0][1]:.1f} mm" if tips else "none"
+            raise LandmarkError(f"{name}: nothing protrudes like a nose (highest protrusion {top}, "
+                                f"a nose tip stands ~10 mm out): not a face, or wrong units?")
         tpl_n = _template_tip_plane_normal(model, radius)
         starts = []
         for vid, _, n in tips:
@@ -575,6 +582,7 @@ def _predict_once(mesh, model, opts) -> "LandmarkResult":
         positions, confidence, vids, expected, loc_debug = _bp_outputs(feat, model, best, opts)
     else:
         raise ValueError(f"localise must be 'patch' or 'bp', got {opts['localise']!r}")
+    flags += loc_debug.pop("flags", [])
     ref_rms = float(model.param("mean_icp_rms") or 1.0)
     if rms > 3.0 * max(ref_rms, 0.5):
         flags.append(f"poor_face_fit:icp_rms={rms:.1f}mm (training {ref_rms:.1f}mm)")
