@@ -424,19 +424,39 @@ def _bp_outputs(feat, model, best, opts):
 
 _PATCH_CACHE: dict = {}
 
+#: A patch whose displacement from the global prediction has a squared Mahalanobis distance
+#: (learned offset covariance) above this (chi2, 3 dof, p = 0.001) is rejected.
+RUNAWAY_M2 = float(chi2.isf(0.001, 3))
+
+
+def _packaged_template(model):
+    """The packaged template; LandmarkError if the model's Pa is not its landmarks."""
+    from ..template import load_template
+
+    tpl = load_template()
+    lm = tpl.vertices[tpl.landmark_ids]
+    if lm.shape != model.graph_points.shape or np.abs(lm - model.graph_points).max() > 1e-3:
+        raise LandmarkError("the model's landmark graph is not the packaged template's: "
+                            "use localise='bp' with this model")
+    return tpl
+
+
+def _template_surface_points(model, spacing: float = 4.0) -> np.ndarray:
+    """(P, 3) the packaged template's vertices voxel-subsampled at ``spacing`` mm (~1,900)."""
+    key = (model.graph_points.tobytes(), "surface", float(spacing))
+    if key not in _PATCH_CACHE:
+        tpl = _packaged_template(model)
+        _PATCH_CACHE[key] = tpl.vertices[voxel_subsample(tpl.vertices, np.arange(tpl.n_vertices), spacing)]
+    return _PATCH_CACHE[key]
+
 
 def _template_patches(model, radius: float) -> list:
     """Per landmark, the packaged template's vertices (P_i, 3) within ``radius`` mm of its Pa
     point (template frame, mm). Raises LandmarkError if the model's Pa is not this template's."""
     key = (model.graph_points.tobytes(), float(radius))
     if key not in _PATCH_CACHE:
-        from ..template import load_template
-
-        tpl = load_template()
+        tpl = _packaged_template(model)
         lm = tpl.vertices[tpl.landmark_ids]
-        if lm.shape != model.graph_points.shape or np.abs(lm - model.graph_points).max() > 1e-3:
-            raise LandmarkError("the model's landmark graph is not the packaged template's: "
-                                "use localise='bp' with this model")
         _PATCH_CACHE[key] = tuple(tpl.vertices[np.linalg.norm(tpl.vertices - p, axis=1) < radius] for p in lm)
     return list(_PATCH_CACHE[key])
 
@@ -471,10 +491,14 @@ def _patch_localise(feat, model, pose, opts):
         rp, tp, prms, _ = trimmed_icp(scale * patches[i], feat.tree, r, t, iters=20, keep=0.9,
                                       normals=feat.normals)
         x = local @ rp.T + tp
+        m2 = float(mahalanobis2((x - expected[-1]) @ r / scale, np.zeros(3), model.offset_cov[i]))
+        if m2 > RUNAWAY_M2:
+            # the patch slid off (a strong expression, a hole): the global prediction is safer
+            flags.append(f"patch_slid:{nm}")
+            x = expected[-1]
         _, v = feat.tree.query(x[None])
         v = int(np.asarray(v).ravel()[0])
         vids[nm], positions[nm] = v, feat.vertices[v].copy()
-        m2 = float(mahalanobis2((x - expected[-1]) @ r / scale, np.zeros(3), model.offset_cov[i]))
         confidence[nm] = float(np.clip(min(1.0, 2.0 * float(chi2.sf(m2, 3))) * min(1.0, (2.0 / max(prms, 1e-9)) ** 2), 0, 1))
         rms_all.append(prms)
     return positions, confidence, vids, np.array(expected), dict(scale=scale, patch_rms=rms_all, flags=flags)
@@ -538,7 +562,7 @@ def _protrusion_pose(feat, model, opts, timer, name):
     """Default start: the ``n_tip_candidates`` most protruding points (:mod:`.protrusion`), each
     with a sweep of ``sweep_angles`` rotations about its plane normal, then the template ICP;
     the pose with the smallest trimmed residual wins. Returns (R, t, rms mm, debug dict)."""
-    from .pose import fit_poses, normal_sweep_starts
+    from .pose import fit_poses, normal_sweep_starts, trimmed_icp
     from .protrusion import nose_tip_candidates
 
     radius = float(opts["protrusion_radius"])
@@ -554,8 +578,16 @@ def _protrusion_pose(feat, model, opts, timer, name):
             starts += normal_sweep_starts(model.graph_points[NOSE_TIP], tpl_n, feat.vertices[vid], n,
                                           int(opts["sweep_angles"]))
     with timer("pose"):
-        (r, t, rms), = fit_poses(model.icp_points, feat.tree, starts, n_best=1, normals=feat.normals)
-    return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips])
+        poses = fit_poses(model.icp_points, feat.tree, starts, n_best=3, normals=feat.normals)
+        # A face and its upside-down image can fit the upper face almost equally well (forehead
+        # on the chin); the whole template (mouth and chin too) tells them apart: measured on
+        # the 2 upside-down results of the 350 test scans, the right pose had the lowest
+        # whole-template residual while its upper-face residual was 0.1-0.15 mm higher.
+        full = _template_surface_points(model)
+        scores = [trimmed_icp(full, feat.tree, pr, pt, iters=10, normals=feat.normals)[2] for pr, pt, _ in poses]
+        r, t, rms = poses[int(np.argmin(scores))]
+    return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips], pose_rms=[p[2] for p in poses],
+                           pose_full_rms=scores)
 
 
 def _predict_once(mesh, model, opts) -> "LandmarkResult":
