@@ -1,7 +1,12 @@
 """Per-stage timing of facecorr.landmarks.predict_landmarks on real scans, and an output check.
 
 Usage:
-  python benches/landmark_timing.py DB MODEL.npz [--n 10] [--save REF.npz] [--ref REF.npz]
+  python benches/landmark_timing.py DB MODEL.npz [--n 10] [--method default|paper]
+         [--min-vertices 50000] [--save REF.npz] [--ref REF.npz]
+
+``--min-vertices``: scans with fewer vertices are midpoint-subdivided (each triangle into 4, the
+surface unchanged) until they reach it, to time the issue's 50k-vertex case. One scan at a time,
+FACECORR_THREADS threads (2 by default).
 
 Predicts the landmarks of the first ``--n`` test scans of a synthetic database (every 7th record
 from the test split, so several subjects/expressions), prints the median seconds per stage and, with
@@ -22,13 +27,17 @@ def main():
     ap.add_argument("db")
     ap.add_argument("model")
     ap.add_argument("--n", type=int, default=10)
+    ap.add_argument("--method", default="default", choices=["default", "paper"])
+    ap.add_argument("--min-vertices", type=int, default=0)
     ap.add_argument("--save")
     ap.add_argument("--ref")
     a = ap.parse_args()
 
     from facecorr.io import load_mesh
+    from facecorr.landmarks.evaluate import METHODS
     from facecorr.landmarks.model import load_model
     from facecorr.landmarks.predict import predict_landmarks
+    from facecorr.mesh import Mesh
     from facecorr.names import LANDMARK_NAMES
     from facecorr.synth import load_index
 
@@ -39,8 +48,13 @@ def main():
     rows, pos, vids, names, nverts = [], [], [], [], []
     for rec in recs:
         mesh = load_mesh(rec["scan"], units="mm")
+        while mesh.n_vertices < a.min_vertices:
+            import trimesh.remesh
+
+            v, f = trimesh.remesh.subdivide(mesh.vertices, mesh.faces)
+            mesh = Mesh(v, f, source=mesh.source)
         t0 = time.perf_counter()
-        res = predict_landmarks(mesh, model=model)
+        res = predict_landmarks(mesh, model=model, **METHODS[a.method])
         wall = time.perf_counter() - t0
         t = dict(res.timings_s)
         t["wall"] = wall

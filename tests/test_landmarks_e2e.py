@@ -109,3 +109,20 @@ def test_hopeless_input_is_flagged_or_refused(trained):
         return
     assert res.flags, "a flat sheet must not give silent landmarks"
     assert min(res.confidence.values()) < 0.3
+
+
+@pytest.mark.parametrize("method", ["default", "paper"])
+def test_eval_landmarks_cli_writes_tables(trained, tmp_path, method):
+    from facecorr.cli import main
+
+    db, path, _, _ = trained
+    out = tmp_path / "eval"
+    rc = main(["eval", "landmarks", str(db), "--model", str(path), "--out", str(out), "--limit", "2",
+               "--workers", "1", "--method", method])
+    assert rc == 0
+    rows = json.loads((out / "landmarks_per_scan.json").read_text())
+    assert len(rows) == 2 and all(r["ok"] for r in rows)
+    stages = set().union(*(r["timings_s"] for r in rows))
+    assert ("umbilics" in stages) == (method == "paper")
+    csv = (out / "landmarks_table.csv").read_text().splitlines()
+    assert csv[0].startswith("landmark,mean_mm") and len(csv) == 1 + len(LANDMARK_NAMES)

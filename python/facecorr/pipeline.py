@@ -70,6 +70,10 @@ class Result:
             write_json(json_path, self.to_json())
 
 
+#: Shape-fit landmark weight when the landmarks were predicted (see :func:`correspond`).
+PREDICTED_LANDMARK_WEIGHT = 0.0
+
+
 def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, template=None) -> Result:
     """Register the template onto ``mesh`` fully automatically.
 
@@ -109,7 +113,12 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         positions = {n: np.asarray(landmarks[n], float) for n in LANDMARK_NAMES}
         confidence = {n: 1.0 for n in LANDMARK_NAMES}
     timings["landmarks"] = time.perf_counter() - t0
-    reg = register(mesh, positions, template=template)
+    # The shape fit's landmark term pins the template's landmarks to the given points: right for
+    # landmarks a user supplies, harmful for predicted ones (2-3 mm off). Measured on the first 21
+    # bu3dfe test scans with predicted landmarks: weight 10 -> 0 takes eyes 1.47/1.55 -> 1.26/1.18
+    # mm and nose 1.40 -> 1.18 mm, brows/mouth/dense unchanged (BENCHMARKS.md, "Registration").
+    options = {} if landmarks is not None else {"shape_landmark_weight": PREDICTED_LANDMARK_WEIGHT}
+    reg = register(mesh, positions, template=template, **options)
     timings.update({f"registration.{k}": v for k, v in reg.timings_s.items()})
     timings["total"] = time.perf_counter() - t0
     return Result(

@@ -32,6 +32,8 @@ def add_commands(subparsers) -> None:
         e.add_argument("--workers", type=int, default=2)
         e.add_argument("--limit", type=int, help="only the first N evaluation scans")
         e.add_argument("--rotate", action="store_true", help="turn every scan by a random rotation first")
+        e.add_argument("--method", default="default", choices=["default", "paper"],
+                       help="default (protrusion start + template patches) or paper (umbilic/FPPCA start + BP)")
         e.set_defaults(func=cmd_eval_landmarks)
 
 
@@ -71,6 +73,6 @@ def cmd_eval_landmarks(args) -> int:
     from .evaluate import evaluate_landmarks
 
     _, rows, md = evaluate_landmarks(args.db, args.out, model=args.model, workers=args.workers,
-                                     limit=args.limit, rotate=args.rotate)
+                                     limit=args.limit, rotate=args.rotate, method=args.method)
     print(md)
     return 0 if all(r["ok"] for r in rows) else 1

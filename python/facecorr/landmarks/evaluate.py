@@ -23,7 +23,7 @@ PRETTY = {n: n.replace("_", " ").capitalize() for n in LANDMARK_NAMES}
 
 def _eval_one(job):
     """Worker: predict one scan and measure it; never raises."""
-    rec, model_path, rotate_seed = job
+    rec, model_path, rotate_seed, options = job
     from ..io import load_mesh
     from ..mesh import Mesh
     from .model import load_model
@@ -41,7 +41,7 @@ def _eval_one(job):
             r = Rotation.random(random_state=rotate_seed).as_matrix()
             mesh = Mesh(mesh.vertices @ r.T, mesh.faces, source=mesh.source)
             truth = truth @ r.T
-        res = predict_landmarks(mesh, model=model)
+        res = predict_landmarks(mesh, model=model, **options)
         err = np.linalg.norm(res.as_array() - truth, axis=1)
         return {"scan": rec["scan"], "ok": True, "errors": dict(zip(LANDMARK_NAMES, err.tolist())),
                 "confidence": res.confidence, "flags": res.flags, "timings_s": res.timings_s,
@@ -52,6 +52,9 @@ def _eval_one(job):
 
 
 _MODEL_CACHE = {}
+
+#: Prediction options of the methods ``facecorr eval landmarks --method`` compares.
+METHODS = {"default": {}, "paper": {"start_search": "paper", "localise": "bp"}}
 
 
 def _cached_model(path):
@@ -98,10 +101,11 @@ def markdown(table, rows) -> str:
 
 
 def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int | None = None,
-                       rotate: bool = False, progress: bool = True):
+                       rotate: bool = False, progress: bool = True, method: str = "default"):
     """Run the evaluation; returns (table rows, per-scan rows) and writes the reports to out_dir.
 
     ``rotate``: every scan is first turned by a uniformly random rotation of SO(3) (seeded per scan).
+    ``method``: a key of :data:`METHODS` ("default", or "paper" for the paper's start + BP).
     """
     from ..threads import process_map
 
@@ -114,7 +118,9 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     recs = select_eval_records(load_index(db_dir))
     if limit:
         recs = recs[:limit]
-    jobs = [(r, model, (1000 + k) if rotate else None) for k, r in enumerate(recs)]
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    jobs = [(r, model, (1000 + k) if rotate else None, METHODS[method]) for k, r in enumerate(recs)]
     rows = process_map(_eval_one, jobs, workers=workers, desc="eval landmarks", progress=progress)
     table = landmark_table(rows)
     md = markdown(table, rows)

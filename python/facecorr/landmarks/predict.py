@@ -1,7 +1,20 @@
-"""Landmark prediction on an untouched scan (paper §3.2-3.6).
+"""Landmark prediction on an untouched scan (paper §3.2-3.6, and the faster, more accurate default).
+
+Two start searches (``start_search``) and two localisations (``localise``) combine:
+
+* default, ``protrusion`` + ``patch`` (~1 s per 35k-vertex scan): the most protruding points
+  (:mod:`.protrusion`) seed a rigid ICP of the template's upper face (sweep about the protrusion
+  plane normal); the whole-template residual picks among the best poses; a uniform scale is
+  fitted; each landmark is carried by a local ICP of the template's own surface around it.
+* the paper, ``paper`` + ``bp`` (~8 s): umbilics, FPPCA labels, nose-first search, graph
+  alignment with the flip test, then FP node + canonical-form edge potentials and loopy BP.
+  Measured side by side on the bu3dfe test split in BENCHMARKS.md ("Landmarks").
 
 Stages (their wall times are returned in ``LandmarkResult.timings_s``):
 
+``prepare``     geodesic solver + KD-tree over the scan (compiled core).
+``starts``      (protrusion) nose-tip candidates and the rotation sweep about each.
+``patches``     (patch) similarity refinement and the per-landmark template-patch fits.
 ``prepare``     geodesic solver + KD-tree over the scan (compiled core).
 ``umbilics``    umbilic vertices (``facecorr.curvature.umbilics``): the samples of §3.4.
 ``fppca``       FP descriptors at the umbilics, PCA projection, ellipsoid labels.
@@ -27,7 +40,7 @@ Circles are subsampled to ``circle_spacing`` mm before FPPCA (a 25 mm geodesic c
 carry the same label). When several nose-tip starts are plausible, the ``n_starts`` best umbilics
 are tried and the hypothesis with the best BP score wins (robustness on raw scans with hair).
 
-Confidence per landmark: the BP max-marginal probability mass (softmax of the beliefs) within
+Confidence per landmark (patch): see :func:`_patch_localise`. Confidence (bp): the BP max-marginal probability mass (softmax of the beliefs) within
 ``confidence_radius`` mm of the chosen vertex, times a node-fit factor
 ``min(1, 2 * chi2.sf(m2, S))`` where m2 is the squared Mahalanobis distance of the chosen
 vertex's FP to the landmark's learned Gaussian (1 for a typical descriptor, small for an
@@ -401,7 +414,7 @@ def predict_landmarks(mesh, model=None, **options) -> "LandmarkResult":
 def _bp_outputs(feat, model, best, opts):
     """Positions, confidences, vertex ids, posed graph and debug of a BP localisation.
 
-    Confidence per landmark: the BP max-marginal probability mass within ``confidence_radius``
+    Confidence per landmark (patch): see :func:`_patch_localise`. Confidence (bp): the BP max-marginal probability mass within ``confidence_radius``
     of the chosen vertex times the node-fit factor (module docstring)."""
     res = best["bp"]
     positions, confidence, vids = {}, {}, {}
