@@ -126,3 +126,5 @@ def test_eval_landmarks_cli_writes_tables(trained, tmp_path, method):
     assert ("umbilics" in stages) == (method == "paper")
     csv = (out / "landmarks_table.csv").read_text().splitlines()
     assert csv[0].startswith("landmark,mean_mm") and len(csv) == 1 + len(LANDMARK_NAMES)
+    assert (out / "landmarks.png").stat().st_size > 10_000
+    assert all(np.asarray(r["predicted"]).shape == (len(LANDMARK_NAMES), 3) for r in rows)

@@ -71,3 +71,27 @@ def test_trimmed_icp_ignores_missing_part():
     r, t, rms, d = trimmed_icp(tpl[::5], tree, r0, np.array([3.0, -2, 1]), iters=60, keep=0.6, normals=normals)
     np.testing.assert_allclose(r, np.eye(3), atol=5e-3)
     assert rms < 0.5
+
+
+@pytest.mark.parametrize("use_normals", [True, False])
+def test_batch_icp_equals_looped_trimmed_icp(use_normals):
+    from facecorr.landmarks.pose import batch_icp, fit_poses
+
+    rot = Rotation.random(random_state=3).as_matrix()
+    clean = _bumpy_face(90)
+    normals = _grid_normals(clean, 90) @ rot.T
+    scan = clean @ rot.T + np.array([5.0, -20.0, 40.0])
+    tree = cKDTree(scan)
+    tip = np.array([0.0, 0.0, 25.0])
+    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + [5.0, -20.0, 40.0], rot[:, 2], 8)
+    pts = _bumpy_face()[::7]
+    nrm = normals if use_normals else None
+    rms, rs, ts = batch_icp(pts, tree, starts, iters=5, normals=nrm)
+    for k, (r0, t0) in enumerate(starts):
+        r, t, rms_k, _ = trimmed_icp(pts, tree, r0, t0, iters=5, tol=-np.inf, normals=nrm)
+        np.testing.assert_allclose(rs[k], r, atol=1e-6)
+        np.testing.assert_allclose(ts[k], t, atol=1e-5)
+        assert rms[k] == pytest.approx(rms_k, rel=1e-6)
+    # and the best refined pose is the true one
+    (r, t, rms_best), *_ = fit_poses(pts, tree, starts, n_best=2, normals=normals)
+    np.testing.assert_allclose(r, rot, atol=0.02)

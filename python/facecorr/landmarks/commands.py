@@ -34,6 +34,7 @@ def add_commands(subparsers) -> None:
         e.add_argument("--rotate", action="store_true", help="turn every scan by a random rotation first")
         e.add_argument("--method", default="default", choices=["default", "paper"],
                        help="default (protrusion start + template patches) or paper (umbilic/FPPCA start + BP)")
+        e.add_argument("--no-png", action="store_true", help="skip landmarks.png (true vs predicted on 8 scans)")
         e.set_defaults(func=cmd_eval_landmarks)
 
 
@@ -73,6 +74,7 @@ def cmd_eval_landmarks(args) -> int:
     from .evaluate import evaluate_landmarks
 
     _, rows, md = evaluate_landmarks(args.db, args.out, model=args.model, workers=args.workers,
-                                     limit=args.limit, rotate=args.rotate, method=args.method)
+                                     limit=args.limit, rotate=args.rotate, method=args.method,
+                                     png=not args.no_png)
     print(md)
     return 0 if all(r["ok"] for r in rows) else 1

@@ -42,8 +42,12 @@ def _eval_one(job):
             mesh = Mesh(mesh.vertices @ r.T, mesh.faces, source=mesh.source)
             truth = truth @ r.T
         res = predict_landmarks(mesh, model=model, **options)
-        err = np.linalg.norm(res.as_array() - truth, axis=1)
-        return {"scan": rec["scan"], "ok": True, "errors": dict(zip(LANDMARK_NAMES, err.tolist())),
+        pred = res.as_array()
+        err = np.linalg.norm(pred - truth, axis=1)
+        if rotate_seed is not None:
+            pred = pred @ r  # back to the file's frame, for the pictures
+        return {"scan": rec["scan"], "gt": rec["gt"], "ok": True, "errors": dict(zip(LANDMARK_NAMES, err.tolist())),
+                "predicted": pred.tolist(),
                 "confidence": res.confidence, "flags": res.flags, "timings_s": res.timings_s,
                 "n_vertices": mesh.n_vertices, "seconds": time.perf_counter() - t0}
     except Exception as e:  # noqa: BLE001 - a failed scan is a result too
@@ -101,11 +105,13 @@ def markdown(table, rows) -> str:
 
 
 def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int | None = None,
-                       rotate: bool = False, progress: bool = True, method: str = "default"):
+                       rotate: bool = False, progress: bool = True, method: str = "default",
+                       png: bool = True):
     """Run the evaluation; returns (table rows, per-scan rows) and writes the reports to out_dir.
 
     ``rotate``: every scan is first turned by a uniformly random rotation of SO(3) (seeded per scan).
     ``method``: a key of :data:`METHODS` ("default", or "paper" for the paper's start + BP).
+    ``png``: also write ``landmarks.png`` (:func:`plot_landmarks` of the first 4 and the 4 worst scans).
     """
     from ..threads import process_map
 
@@ -133,4 +139,51 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
             f"{t['landmark']},{t['mean']:.3f},{t['std']:.3f},{t['max']:.3f},{t['T10']:.2f},{t['T20']:.2f},{t['T30']:.2f},{t['n']}\n"
             for t in table))
     write_json(out / "landmarks_per_scan.json", rows)
+    ok = [r for r in rows if r["ok"]]
+    if png and ok:
+        worst = sorted(ok[4:], key=lambda r: -max(r["errors"].values()))[:4]
+        plot_landmarks(ok[:4] + worst, out / "landmarks.png")
     return table, rows, md
+
+
+def plot_landmarks(rows, path, cols: int = 4) -> None:
+    """PNG of scans with their true (green) and predicted (red) landmarks, one panel per row of
+    ``evaluate_landmarks`` (needs "scan", "gt", "predicted"), each turned to a front view by a
+    rigid fit of its true landmarks onto the template's, titled with its largest error (mm)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..fileio import atomic_path
+    from ..io import load_mesh
+    from ..render import draw_mesh, kabsch
+    from ..template import load_template
+
+    tpl = load_template()
+    ref = tpl.vertices[tpl.landmark_ids]
+    n = len(rows)
+    nrow = (n + cols - 1) // cols
+    fig, axes = plt.subplots(nrow, cols, figsize=(3.2 * cols, 3.6 * nrow), squeeze=False)
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    for ax, row in zip(axes.ravel(), rows):
+        mesh = load_mesh(row["scan"], units="mm")
+        gt = json.loads(Path(row["gt"]).read_text())
+        truth = np.array([gt["landmarks"][k] for k in LANDMARK_NAMES], float)
+        pred = np.asarray(row["predicted"], float)
+        r, t = kabsch(truth, ref)
+        v = mesh.vertices @ r.T + t
+        keep = np.linalg.norm(v - ref.mean(axis=0), axis=1) < 95.0  # the face, not the whole head
+        draw_mesh(ax, v, mesh.faces[keep[mesh.faces].all(axis=1)])
+        tp, pp = truth @ r.T + t, pred @ r.T + t
+        ax.scatter(tp[:, 0], tp[:, 1], s=22, c="lime", edgecolors="black", linewidths=0.5, zorder=6)
+        ax.scatter(pp[:, 0], pp[:, 1], s=30, c="red", marker="x", linewidths=1.2, zorder=7)
+        name = Path(row["scan"]).stem.replace("_F3D", "")
+        ax.set_title(f"{name}: max {max(row['errors'].values()):.1f} mm", fontsize=9)
+        ax.axis("off")
+    fig.suptitle("landmarks: true (green dots) and predicted (red crosses)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)

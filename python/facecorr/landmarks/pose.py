@@ -109,27 +109,75 @@ def fit_pose(points: np.ndarray, tree, starts, coarse_iters: int = 8, fine_iters
     return trimmed_icp(points, tree, best[0], best[1], iters=fine_iters, keep=keep, normals=normals)
 
 
+def batch_icp(points: np.ndarray, tree, starts, iters: int = 8, keep: float = 0.8,
+              normals: np.ndarray | None = None):
+    """:func:`trimmed_icp` from many starts at once, a fixed number of iterations.
+
+    All starts advance together: one KD-tree query for every start's moved points per
+    iteration and batched 6x6 normal equations (point-to-plane) or batched Kabsch, which is
+    ~4x faster than looping :func:`trimmed_icp` over ~50 sweep starts (Python overhead dominates
+    a 788-point ICP step). Returns (rms (S,), R (S, 3, 3), t (S, 3)), the trimmed RMS at the
+    final poses.
+    """
+    scan = tree.data
+    rs = np.array([np.asarray(r, float) for r, _ in starts])
+    ts = np.array([np.asarray(t, float) for _, t in starts])
+    n_s, n_p = len(rs), len(points)
+    n_keep = max(6, int(keep * n_p))
+    for it in range(iters + 1):
+        moved = np.einsum("sij,pj->spi", rs, points) + ts[:, None, :]
+        d, idx = tree.query(moved.reshape(-1, 3))
+        d, idx = np.asarray(d).reshape(n_s, n_p), np.asarray(idx).reshape(n_s, n_p)
+        order = np.argpartition(d, n_keep - 1, axis=1)[:, :n_keep]
+        rms = np.sqrt(np.mean(np.take_along_axis(d, order, 1) ** 2, axis=1))
+        if it == iters:
+            break
+        p = np.take_along_axis(moved, order[..., None], 1)
+        j = np.take_along_axis(idx, order, 1)
+        q = scan[j]
+        if normals is None:
+            cp, cq = p.mean(1, keepdims=True), q.mean(1, keepdims=True)
+            u, _, vt = np.linalg.svd(np.einsum("ski,skj->sij", p - cp, q - cq))
+            fix = np.ones((n_s, 3))
+            fix[:, 2] = np.sign(np.linalg.det(np.einsum("sji,skj->sik", vt, u)))
+            dr = np.einsum("sji,sj,skj->sik", vt, fix, u)
+            dt = cq[:, 0] - np.einsum("sij,sj->si", dr, cp[:, 0])
+        else:
+            n = normals[j]
+            a = np.concatenate([np.cross(p, n), n], axis=2)
+            b = np.einsum("ski,ski->sk", q - p, n)
+            x = np.linalg.solve(np.einsum("ski,skj->sij", a, a) + 1e-9 * np.eye(6),
+                                np.einsum("ski,sk->si", a, b)[..., None])[..., 0]
+            dr = np.array([axis_angle(w, float(np.linalg.norm(w))) if np.linalg.norm(w) > 1e-12 else np.eye(3)
+                           for w in x[:, :3]])
+            dt = x[:, 3:]
+        rs = np.einsum("sij,sjk->sik", dr, rs)
+        ts = np.einsum("sij,sj->si", dr, ts) + dt
+    return rms, rs, ts
+
+
 def fit_poses(points: np.ndarray, tree, starts, n_best: int = 3, min_angle_deg: float = 30.0,
-              coarse_iters: int = 8, fine_iters: int = 40, keep: float = 0.8, normals=None):
+              coarse_iters: int = 8, fine_iters: int = 40, keep: float = 0.8, normals=None,
+              coarse_stride: int = 3):
     """Up to ``n_best`` refined poses [(R, t, rms), ...] from the best coarse starts whose
     rotations differ by more than ``min_angle_deg`` (a face and its upside-down image can fit
-    the trimmed residual almost equally well; the caller decides with the descriptors)."""
-    coarse = []
-    for r0, t0 in starts:
-        r, t, rms, _ = trimmed_icp(points, tree, r0, t0, iters=coarse_iters, keep=keep, normals=normals)
-        coarse.append((rms, r, t))
-    coarse.sort(key=lambda c: c[0])
+    the trimmed residual almost equally well; the caller decides). The coarse stage runs all
+    starts together (:func:`batch_icp`) on every ``coarse_stride``-th point (it only ranks the
+    starts; nearest-neighbour queries far off the surface, as most starts are, cost ~10x a
+    near one), the refinement :func:`trimmed_icp` on all points."""
+    rms, rs, ts = batch_icp(points[::max(1, int(coarse_stride))], tree, starts, iters=coarse_iters, keep=keep,
+                            normals=normals)
     chosen = []
     cos_min = np.cos(np.radians(min_angle_deg))
-    for rms, r, t in coarse:
-        if all((np.trace(r.T @ c[1]) - 1) / 2 < cos_min for c in chosen):
-            chosen.append((rms, r, t))
+    for k in np.argsort(rms, kind="stable"):
+        if all((np.trace(rs[k].T @ c[0]) - 1) / 2 < cos_min for c in chosen):
+            chosen.append((rs[k], ts[k]))
         if len(chosen) >= n_best:
             break
     out = []
-    for _, r, t in chosen:
-        r, t, rms, _ = trimmed_icp(points, tree, r, t, iters=fine_iters, keep=keep, normals=normals)
-        out.append((r, t, rms))
+    for r, t in chosen:
+        r, t, rms_k, _ = trimmed_icp(points, tree, r, t, iters=fine_iters, keep=keep, normals=normals)
+        out.append((r, t, rms_k))
     return out
 
 
