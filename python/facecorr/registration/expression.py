@@ -173,7 +173,7 @@ def _refit_affine(p0, q, qn, w, landmarks, landmark_weight, a0):
 
 
 def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None, scan_boundary=None,
-                   landmarks=None, **options) -> ExpressionFit:
+                   landmarks=None, alpha0=None, **options) -> ExpressionFit:
     """Fit the blendshape weights of ``template`` to ``scan`` (paper §4.2).
 
     Parameters
@@ -185,6 +185,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     scan_normals, scan_boundary : optional precomputed (S, 3) unit normals and (S,) bool boundary
         flags of the scan (computed if None).
     landmarks : optional (template vertex ids (L,), scan positions (L, 3)) for ``refine_affine``.
+    alpha0 : optional (K,) starting weights in [0, 1] (default zeros: the neutral template).
     **options : phi_deg (80), chin_start (0.8), mouth_stop (0.6), max_rounds (20),
         max_stage_rounds (8: a stage ends after this many rounds even if its valid share is
         not reached),
@@ -232,7 +233,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     if o["lip_rim_rings"] >= 0:
         keep &= ~rim_mask(template, o["lip_rim_rings"])
 
-    alpha = np.zeros(k)
+    alpha = np.zeros(k) if alpha0 is None else np.clip(np.asarray(alpha0, dtype=np.float64), 0.0, 1.0)
     stage = 1
     stage_rounds = 0
     prev_step = np.inf
