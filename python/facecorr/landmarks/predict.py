@@ -72,6 +72,7 @@ PREDICT_DEFAULTS = {
     "n_tip_candidates": 4,        # protrusion maxima tried as nose tips
     "protrusion_radius": 25.0,    # mm, scale of the protrusion measure
     "min_protrusion": 4.0,        # mm, refuse a scan whose highest protrusion is lower (no nose)
+    "n_poses": 5,                 # distinct coarse poses refined and scored by the whole template
     "localise": "patch",          # "patch" (default: local template fits) or "bp" (paper: FP + BP)
     "patch_radius": 20.0,         # mm, template patch around each landmark but the nose tip
     "tip_patch_radius": 25.0,     # mm, the nose tip's (its 20 mm patch slides along the ridge)
@@ -591,7 +592,7 @@ def _protrusion_pose(feat, model, opts, timer, name):
             starts += normal_sweep_starts(model.graph_points[NOSE_TIP], tpl_n, feat.vertices[vid], n,
                                           int(opts["sweep_angles"]))
     with timer("pose"):
-        poses = fit_poses(model.icp_points, feat.tree, starts, n_best=3, normals=feat.normals)
+        poses = fit_poses(model.icp_points, feat.tree, starts, n_best=int(opts["n_poses"]), normals=feat.normals)
         # A face and its upside-down image can fit the upper face almost equally well (forehead
         # on the chin); the whole template (mouth and chin too) tells them apart: measured on
         # the 2 upside-down results of the 350 test scans, the right pose had the lowest
