@@ -91,8 +91,9 @@ PREDICT_DEFAULTS = {
 }
 
 #: The wider start search used when a first prediction fails its own checks (graph off the
-#: surface, poor face fit). Measured on 10 such failures of the bu3dfe test split: 6 corrected,
-#: ~10 s per retry (BENCHMARKS.md, "Landmarks"); kept out of the first pass for speed.
+#: surface, poor face fit): more umbilic starts (paper start; 6 of 10 such failures corrected,
+#: ~10 s per retry) or more protrusion candidates and a finer sweep (default start; 19 of the
+#: 350 bu3dfe test scans retried, ~1 s each). Kept out of the first pass for speed.
 RETRY_OVERRIDES = {"n_starts": 8, "sweep_tips": 4, "n_tips": 3, "n_tip_candidates": 10, "sweep_angles": 16}
 
 #: Flags that mean "the whole graph is probably misplaced" (31 of 34 such failures flagged, no
