@@ -61,7 +61,7 @@ def test_expression_weights_are_recovered(solver):
     r = q * np.sign(np.linalg.det(q))
     t = np.array([20.0, -40.0, 300.0])
     scan = Mesh(v @ r.T + t, f)
-    res = fit_expression(tpl, np.hstack([r, t[:, None]]), scan, solver=solver, weights="uniform")
+    res = fit_expression(tpl, np.hstack([r, t[:, None]]), scan, solver=solver, weights="uniform", alpha_prior=0.0)
     np.testing.assert_allclose(res.alpha, alpha, atol=0.05)
     assert res.rounds and res.rounds[-1].get("stopped") == "converged"
 

@@ -1,4 +1,4 @@
-"""CLI commands of the pipeline: ``register``, ``batch``, ``demo``, ``eval registration``."""
+"""CLI commands of the pipeline: ``register``, ``batch``, ``train-identity``, ``demo``, ``eval registration``."""
 
 from __future__ import annotations
 
@@ -35,6 +35,15 @@ def add_commands(sub) -> None:
     b.add_argument("--units", default="auto", choices=["auto", "mm", "cm", "m"])
     b.set_defaults(func=cmd_batch)
 
+    ti = sub.add_parser("train-identity", help="learn the identity basis fitted with the expression",
+                        description="PCA of the template's shape on every training scan of a synthetic "
+                                    "database (from its dense ground truth); see facecorr.registration.identity.")
+    ti.add_argument("db", help="synthetic database folder (with index.json and *_dense.npz)")
+    ti.add_argument("--out", required=True, help="basis file to write (.npz)")
+    ti.add_argument("--modes", type=int, default=40, help="modes kept (default 40)")
+    ti.add_argument("--neutral-only", action="store_true", help="learn from the neutral scans only")
+    ti.set_defaults(func=cmd_train_identity)
+
     d = sub.add_parser("demo", help="synthesise a scan and run the whole pipeline on it")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     d.add_argument("--seed", type=int, default=7)
@@ -56,6 +65,22 @@ def add_commands(sub) -> None:
 
 #: The ``eval`` sub-command's sub-parsers, for other command modules to add to.
 EVAL_SUBPARSERS = None
+
+
+def cmd_train_identity(args) -> int:
+    from .errors import FacecorrError
+    from .registration.identity import train_identity_basis
+
+    if not (Path(args.db) / "index.json").is_file():
+        raise FacecorrError(f"{args.db}: not a synthetic database (no index.json)")
+    try:
+        basis = train_identity_basis(args.db, n_modes=args.modes, neutral_only=args.neutral_only)
+    except ValueError as e:
+        raise FacecorrError(str(e)) from None
+    basis.save(args.out)
+    print(f"wrote {args.out} ({basis.n_modes} modes from {basis.n_samples} scans, "
+          f"{100 * basis.explained.sum():.1f} % of the variance)")
+    return 0
 
 
 def cmd_eval_registration(args) -> int:
