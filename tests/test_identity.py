@@ -171,3 +171,23 @@ def test_packaged_basis_and_bad_files(tmp_path):
         load_identity_basis(tmp_path / "broken.npz")
     with pytest.raises(FacecorrError, match="vertices"):
         load_identity_basis(p, n_vertices=tpl.n_vertices + 1)
+
+
+def test_a_fit_continued_where_it_stopped_matches_one_long_fit():
+    """fit(10 rounds) continued (alpha0, beta0, transform, round_offset) ≈ fit(30 rounds)."""
+    tpl = load_template()
+    rng = np.random.default_rng(4)
+    fields = _smooth_fields(tpl, 3, rng, amplitude=2.0)
+    basis = IdentityBasis(mean=np.zeros_like(fields[0]), modes=fields, n_samples=10, explained=np.full(3, 0.3))
+    alpha = np.zeros(tpl.n_blendshapes)
+    alpha[list(tpl.blendshape_names).index("jawOpen")] = 0.4
+    scan, r, t = _posed(tpl, alpha, np.array([1.0, 0.5, -1.0]), basis, rng)
+    start = np.hstack([r, (t + [1.0, 0.0, 0.0])[:, None]])
+    opts = dict(identity=basis, identity_prior=1.0, identity_prior_start=100.0, alpha_tol=0.0)
+    whole = fit_expression(tpl, start, scan, max_rounds=30, **opts)
+    part = fit_expression(tpl, start, scan, max_rounds=10, **opts)
+    rest = fit_expression(tpl, part.transform, scan, alpha0=part.alpha, beta0=part.identity_weights,
+                          round_offset=10, max_rounds=20, **opts)
+    assert len(whole.rounds) == 30 and len(part.rounds) + len(rest.rounds) == 30
+    assert np.abs(rest.vertices - whole.vertices).max() < 0.05
+    assert np.abs(rest.vertices - part.vertices).max() > 0.05  # the continuation did move it
