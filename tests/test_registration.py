@@ -117,3 +117,50 @@ def test_register_rejects_bad_input():
         register(mesh, lms, template=tpl, shape_nlevels=3)
     with pytest.raises(ValueError, match="alignment"):
         register(mesh, lms, template=tpl, alignment="rigid")
+
+
+def _turned_about_the_nose(lms, degrees):
+    """The landmarks rotated about the nose tip around the face's depth axis (a wrong pose)."""
+    from facecorr.registration.expression import _rodrigues
+
+    pts = np.array([lms[n] for n in LANDMARK_NAMES], float)
+    tip = np.asarray(lms["nose_tip"], float)
+    eyes = pts[:4].mean(0) - tip
+    mouthward = pts[7] - tip
+    axis = np.cross(pts[3] - pts[0], eyes - mouthward)
+    rot = _rodrigues(np.radians(degrees) * axis / np.linalg.norm(axis))
+    return {n: (np.asarray(lms[n], float) - tip) @ rot.T + tip for n in LANDMARK_NAMES}
+
+
+def test_a_fit_from_wrongly_posed_landmarks_is_called_implausible():
+    tpl = load_template()
+    mesh, lms, gt, _ = make_scan(3)
+    good = register(mesh, lms, template=tpl)
+    assert good.implausible() == [], good.details.get("fit_rms_mm")
+    bad = register(mesh, _turned_about_the_nose(lms, 35.0), template=tpl, shape_landmark_weight=0.0)
+    reasons = bad.implausible()
+    assert reasons and any(r.startswith(("fit_rms", "identity_chi2")) for r in reasons), reasons
+
+
+def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch):
+    """First prediction wrong (turned 35 degrees), the wider search right: the refit is kept."""
+    import facecorr.landmarks as lm_pkg
+    from facecorr.landmarks.predict import LandmarkResult
+    from facecorr.pipeline import correspond
+
+    tpl = load_template()
+    mesh, lms, gt, _ = make_scan(3)
+    calls = []
+
+    def fake_predict(mesh_, model=None, **options):
+        calls.append(options)
+        pos = lms if options else _turned_about_the_nose(lms, 35.0)
+        return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[],
+                              timings_s={"total": 0.0})
+
+    monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
+    res = correspond(mesh, template=tpl)
+    assert len(calls) == 2 and calls[1]  # the second call is the wider search
+    assert "refit_wider_search_after_implausible_fit" in res.flags
+    assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
+    assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5

@@ -50,6 +50,33 @@ class RegistrationResult:
     expression_vertices: np.ndarray | None = None
     details: dict = field(default_factory=dict)
 
+    def implausible(self) -> list:
+        """Reasons (list of str, empty if none) to doubt the fit as a whole.
+
+        The expression + identity fit measures how well the model explains the scan: the RMS of
+        its final residuals (mm) and ‖β‖², the identity weights' squared norm, which the prior
+        makes χ²-distributed with M degrees of freedom for faces like the training faces. Landmarks
+        that put the template in a wrong pose force both up (70 bu3dfe test scans: RMS 0.46-0.78
+        mm and ‖β‖² 14-46 for M = 40; the one scan whose predicted eye corners were 30-50 mm off:
+        2.5 mm and 536).
+        """
+        out = []
+        rms = self.details.get("fit_rms_mm")
+        if rms is not None and rms > IMPLAUSIBLE_RMS_MM:
+            out.append(f"fit_rms_{rms:.1f}mm")
+        beta = np.asarray(self.details.get("identity_weights", []), dtype=np.float64)
+        if len(beta):
+            from scipy.stats import chi2
+
+            if chi2.sf(float(beta @ beta), len(beta)) < IMPLAUSIBLE_IDENTITY_P:
+                out.append(f"identity_chi2_{float(beta @ beta):.0f}_of_{len(beta)}")
+        return out
+
+
+#: Thresholds of :meth:`RegistrationResult.implausible`.
+IMPLAUSIBLE_RMS_MM = 1.5
+IMPLAUSIBLE_IDENTITY_P = 1e-6
+
 
 #: Pipeline options beyond the stages' own (``expression_*`` / ``shape_*`` prefixed keys go to
 #: the stages, e.g. ``shape_n_levels=8``, ``expression_max_distance=5``).
@@ -239,6 +266,10 @@ def register(mesh: Mesh, landmarks: dict, template=None, **options) -> Registrat
         transform = expr.transform
         timings["expression"] = expr.seconds
         details["expression_rounds"] = expr.rounds
+        details["identity_weights"] = np.asarray(expr.identity_weights).tolist()
+        last = next((r for r in reversed(expr.rounds) if "energy" in r), None)
+        if last is not None and last["n_valid"] > 0:
+            details["fit_rms_mm"] = float(np.sqrt(last["energy"] / last["n_valid"]))
     else:
         expr = ExpressionFit(alpha=np.zeros(k), vertices=apply_transform(transform, template.vertices))
         timings["expression"] = 0.0

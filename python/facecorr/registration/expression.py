@@ -324,20 +324,20 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         # only the rows that count (valid matches, on the sample) enter the normal equations
         act = np.flatnonzero((w_vert > 0.0) & sample)
         w, qna, da = w_vert[act], qn[act], q[act] - base[act]
-        s_act = lin @ a_cols[act]  # (n, 3, K): d p_i / d α in the scan frame
+        n_x = k + (6 if o["refine_rigid"] else 0)
+        s_act = np.zeros((len(act), 3, n_x))  # d p_i / d x in the scan frame, x = (α, β[, ω, t])
+        np.matmul(lin, a_cols[act], out=s_act[:, :, :k])
         if o["refine_rigid"]:
             # 6 more unknowns: a small rotation ω about the centroid and a translation t of the
             # whole template, linearised (p -> p + ω × (p - c) + t) and solved afresh each round
             ctr = p.mean(axis=0)
             v = p[act] - ctr
-            rig = np.zeros((len(act), 3, 6))
+            rig = s_act[:, :, k:]
             # d(ω × v)_d / dω: the rows of -[v]_x
             rig[:, 0, 1], rig[:, 0, 2] = v[:, 2], -v[:, 1]
             rig[:, 1, 0], rig[:, 1, 2] = -v[:, 2], v[:, 0]
             rig[:, 2, 0], rig[:, 2, 1] = v[:, 1], -v[:, 0]
             rig[:, :, 3:] = np.eye(3)
-            s_act = np.concatenate([s_act, rig], axis=2)
-        n_x = s_act.shape[2]
         # residuals: plane c - J x (weight (1 - λ) w), point-to-point da - S x (weight λ w)
         lam = float(o["point_to_point"])
         c = np.einsum("ij,ij->i", da, qna)
