@@ -53,9 +53,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.cluster.vq import kmeans2
-from scipy.special import logsumexp
-from scipy.stats import chi2
+from scipy.special import chdtrc, chdtri, logsumexp  # χ² tail and its inverse (scipy.stats costs 0.6 s to import)
 
 from ..errors import LandmarkError
 from ..names import LANDMARK_NAMES
@@ -240,6 +238,8 @@ def _alae(feat, model, tip, sub, disk2, fp2, lab2, flags):
     pts = feat.vertices[pts_ids]
     # k-means on 3-D positions: the two alae are on either side of the subnasal.
     init = _two_side_init(pts, feat.vertices[tip], feat.vertices[sub])
+    from scipy.cluster.vq import kmeans2  # the paper's start only: imported when used
+
     _, assign = kmeans2(pts, init, minit="matrix", seed=0)
     if (np.bincount(assign, minlength=2) == 0).any():
         flags.append("subalare_one_sided")
@@ -431,7 +431,7 @@ def _bp_outputs(feat, model, best, opts):
         p = np.exp(b - logsumexp(b)) if np.isfinite(b).any() else np.full(len(b), 1.0 / len(b))
         near = np.linalg.norm(feat.vertices[c] - feat.vertices[v], axis=1) <= opts["confidence_radius"]
         m2 = float(mahalanobis2(best["fps"][i][res.labels[i]], model.node_mean[i], model.node_cov[i]))
-        fit = min(1.0, 2.0 * float(chi2.sf(m2, s_dim)))
+        fit = min(1.0, 2.0 * float(chdtrc(s_dim, m2)))
         confidence[nm] = float(np.clip(p[near].sum() * fit, 0.0, 1.0))
     debug = dict(bp_score=res.score, bp_converged=res.converged, n_candidates=[len(c) for c in best["cands"]],
                  rel_stress=best["rel_stress"])
@@ -442,7 +442,7 @@ _PATCH_CACHE: dict = {}
 
 #: A patch whose displacement from the global prediction has a squared Mahalanobis distance
 #: (learned offset covariance) above this (chi2, 3 dof, p = 0.001) is rejected.
-RUNAWAY_M2 = float(chi2.isf(0.001, 3))
+RUNAWAY_M2 = float(chdtri(3, 0.001))
 
 
 def _packaged_template(model):
@@ -518,7 +518,7 @@ def _patch_localise(feat, model, pose, opts):
         _, v = feat.tree.query(x[None])
         v = int(np.asarray(v).ravel()[0])
         vids[nm], positions[nm] = v, feat.vertices[v].copy()
-        confidence[nm] = float(np.clip(min(1.0, 2.0 * float(chi2.sf(m2, 3))) * min(1.0, (2.0 / max(prms, 1e-9)) ** 2), 0, 1))
+        confidence[nm] = float(np.clip(min(1.0, 2.0 * float(chdtrc(3, m2))) * min(1.0, (2.0 / max(prms, 1e-9)) ** 2), 0, 1))
         rms_all.append(prms)
     return positions, confidence, vids, np.array(expected), dict(scale=scale, patch_rms=rms_all, flags=flags)
 

@@ -66,9 +66,9 @@ class RegistrationResult:
             out.append(f"fit_rms_{rms:.1f}mm")
         beta = np.asarray(self.details.get("identity_weights", []), dtype=np.float64)
         if len(beta):
-            from scipy.stats import chi2
+            from scipy.special import chdtrc  # the χ² tail
 
-            if chi2.sf(float(beta @ beta), len(beta)) < IMPLAUSIBLE_IDENTITY_P:
+            if chdtrc(len(beta), float(beta @ beta)) < IMPLAUSIBLE_IDENTITY_P:
                 out.append(f"identity_chi2_{float(beta @ beta):.0f}_of_{len(beta)}")
         return out
 

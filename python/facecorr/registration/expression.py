@@ -33,6 +33,13 @@ same shape fit (BENCHMARKS.md): dense error 2.54 mm (paper schedule) -> 2.15 (un
 (uniform + 0.3 point-to-point); mouth region 4.55 -> 3.44 -> 2.57 mm. ``weights="paper",
 point_to_point=0`` is the paper's method.
 
+Beyond the paper (defaults; ``identity=None, refine_rigid=False, alpha_prior=0`` is the paper's
+fit): the M modes of an identity basis (:mod:`.identity`) are fitted with α as unbounded weights β
+under a Gaussian prior (annealed from stiff to ``identity_prior`` so pose and expression settle
+first), 6 rigid unknowns re-align the template each round, and a ridge on α keeps unused
+blendshapes at 0. All are linear in the unknowns, so each round stays one small bounded
+least-squares solve (K + M + 6 ≈ 60 unknowns).
+
 Teeth and mouth interior (the paper's failure case): scans of open mouths show teeth, tongue and
 the mouth socket, which the template does not have, and a lip vertex near them would be pulled
 inwards. The guards (BENCHMARKS.md: on ICT-model scans with the jaw wide open, lip error 1.6-1.8 mm
