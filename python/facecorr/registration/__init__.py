@@ -56,7 +56,7 @@ class RegistrationResult:
         The expression + identity fit measures how well the model explains the scan: the RMS of
         its final residuals (mm) and ‖β‖², the identity weights' squared norm, which the prior
         makes χ²-distributed with M degrees of freedom for faces like the training faces. Landmarks
-        that put the template in a wrong pose force both up (70 bu3dfe test scans: RMS 0.46-0.78
+        that put the template in a wrong pose force both up (33 bu3dfe test scans: RMS 0.46-0.78
         mm and ‖β‖² 14-46 for M = 40; the one scan whose predicted eye corners were 30-50 mm off:
         2.5 mm and 536).
         """
