@@ -16,7 +16,7 @@ def run_cli(*args, cwd=None):
 def test_help_lists_every_command():
     out = run_cli("--help")
     assert out.returncode == 0
-    for cmd in ("register", "batch", "demo", "eval", "landmarks", "train", "template", "synth"):
+    for cmd in ("register", "batch", "demo", "eval", "landmarks", "train", "train-identity", "template", "synth"):
         assert cmd in out.stdout
 
 
@@ -154,3 +154,21 @@ def test_process_map_keeps_order_in_spawned_workers():
     jobs = [0.5 * k for k in range(7)]
     assert process_map(math.sqrt, jobs, workers=2, progress=False) == [math.sqrt(j) for j in jobs]
     assert process_map(math.sqrt, jobs, workers=1, progress=False) == [math.sqrt(j) for j in jobs]
+
+
+def test_train_identity_writes_a_loadable_basis(tmp_path):
+    from facecorr.registration.identity import load_identity_basis
+    from facecorr.synth import generate
+    from facecorr.template import load_template
+
+    db = tmp_path / "db"
+    generate(db, preset="tiny", seed=5, workers=2, expressions=["NE", "HA"], levels=[4], progress=False)
+    out = run_cli("train-identity", db, "--out", tmp_path / "basis.npz", "--modes", "3")
+    assert out.returncode == 0, out.stderr
+    assert "1 modes from 2 scans" in out.stdout  # one training subject (F0001) x NE, HA: rank 1
+    b = load_identity_basis(tmp_path / "basis.npz", n_vertices=load_template().n_vertices)
+    assert b.n_modes == 1 and b.n_samples == 2 and np.isfinite(b.modes).all()
+    # not a database: one line, exit 2, nothing written
+    bad = run_cli("train-identity", tmp_path, "--out", tmp_path / "none.npz")
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
+    assert "not a synthetic database" in bad.stderr and not (tmp_path / "none.npz").exists()

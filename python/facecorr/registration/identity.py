@@ -13,7 +13,7 @@ The modes are learned from the training split of a database with dense ground tr
 landmark model is learned from its landmarks (``facecorr train-identity DB``): each training scan's
 dense correspondence (scan vertex = barycentric point of a template triangle) is turned into the
 template's vertex positions on that scan (:func:`reconstruct_template`), rigidly aligned to the
-template (:func:`rigid_procrustes`), and the displacements from the template are summarised by PCA
+template (Kabsch), and the displacements from the template are summarised by PCA
 (:func:`train_identity_basis`). All training scans count, expressive ones too, and their
 expression is left in (``remove_expression=False``): the modes then also carry the expression
 variation the 14 blendshapes cannot express (squinting cheeks, lip shapes), which otherwise the
@@ -28,12 +28,15 @@ and is a prior for faces like them, not for every population.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from ..landmarks.alignment import kabsch
 
 #: Packaged basis, learned from the training split (50 subjects, neutral + 6 expressions) of the
 #: synthetic bu3dfe database, seed 0 (see ``facecorr train-identity``).
@@ -77,10 +80,28 @@ class IdentityBasis:
 
 
 def load_identity_basis(path=None, n_vertices: int | None = None) -> IdentityBasis:
-    """Load a basis written by :meth:`IdentityBasis.save` (default: the packaged one)."""
+    """Load a basis written by :meth:`IdentityBasis.save` (default: the packaged one, read once
+    per process and shared, its arrays read-only)."""
+    b = _packaged_basis() if path is None else _read_basis(Path(path))
+    if n_vertices is not None and len(b.mean) != n_vertices:
+        from ..errors import FacecorrError
+
+        raise FacecorrError(f"identity basis {path or IDENTITY_BASIS_PATH} has {len(b.mean)} vertices, "
+                            f"the template {n_vertices}")
+    return b
+
+
+@functools.lru_cache(maxsize=1)
+def _packaged_basis() -> IdentityBasis:
+    b = _read_basis(IDENTITY_BASIS_PATH)  # 50 ms: worth keeping for a batch of registrations
+    for a in (b.mean, b.modes, b.explained):
+        a.flags.writeable = False
+    return b
+
+
+def _read_basis(p: Path) -> IdentityBasis:
     from ..errors import FacecorrError
 
-    p = Path(path) if path is not None else IDENTITY_BASIS_PATH
     try:
         with np.load(p) as d:
             b = IdentityBasis(mean=d["mean"].astype(np.float64), modes=d["modes"].astype(np.float64),
@@ -89,8 +110,6 @@ def load_identity_basis(path=None, n_vertices: int | None = None) -> IdentityBas
         raise FacecorrError(f"cannot read identity basis {p}: {e}") from None
     if b.modes.ndim != 3 or b.modes.shape[1:] != b.mean.shape or b.mean.shape[1:] != (3,):
         raise FacecorrError(f"identity basis {p} has inconsistent shapes {b.mean.shape}, {b.modes.shape}")
-    if n_vertices is not None and len(b.mean) != n_vertices:
-        raise FacecorrError(f"identity basis {p} has {len(b.mean)} vertices, the template {n_vertices}")
     return b
 
 
@@ -101,18 +120,6 @@ def _edge_operator(faces: np.ndarray, n: int) -> sp.csr_matrix:
     rows = np.repeat(np.arange(len(e)), 2)
     vals = np.tile([1.0, -1.0], len(e))
     return sp.csr_matrix((vals, (rows, e.ravel())), shape=(len(e), n))
-
-
-def rigid_procrustes(src: np.ndarray, dst: np.ndarray, weights=None) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R (3, 3) and translation t (3,) minimising Σ w ‖R src + t − dst‖² (Kabsch)."""
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
-    w = w / w.sum()
-    cs, cd = w @ src, w @ dst
-    h = (src - cs).T @ ((dst - cd) * w[:, None])
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return r, cd - r @ cs
 
 
 def reconstruct_template(dense, template, smooth: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
@@ -147,7 +154,7 @@ def reconstruct_template(dense, template, smooth: float = 1e-2) -> tuple[np.ndar
     y = np.asarray(dense["clean"], dtype=np.float64)[mask]
     # rigid pose from the template's mean shape at the same surface points
     src = np.einsum("sk,skd->sd", bary, a0[corners])
-    r, t = rigid_procrustes(y, src)
+    r, t = kabsch(y, src)
     y = y @ r.T + t
     s = len(y)
     a = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(s), 3), corners.ravel())), shape=(s, n))
@@ -159,7 +166,7 @@ def reconstruct_template(dense, template, smooth: float = 1e-2) -> tuple[np.ndar
     observed = np.zeros(n, dtype=bool)
     observed[corners.ravel()] = True
     # a final rigid fit of the whole reconstruction (the first used only the observed part)
-    r2, t2 = rigid_procrustes(x, a0)
+    r2, t2 = kabsch(x, a0)
     return x @ r2.T + t2, observed
 
 
@@ -190,7 +197,7 @@ def basis_from_shapes(shapes, template, n_modes: int = 40, remove_expression: bo
     bs = np.asarray(template.blendshapes, dtype=np.float64)
     disp = []
     for x in shapes:
-        r, t = rigid_procrustes(x, a0)
+        r, t = kabsch(x, a0)
         d = x @ r.T + t - a0
         disp.append(_remove_expression(d, bs) if remove_expression else d)
     disp = np.array(disp).reshape(len(shapes), -1)
