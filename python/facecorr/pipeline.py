@@ -123,7 +123,7 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
     if doubts and landmarks is None and "retried_wider_search" not in flags:
         # Landmarks in a wrong pose show as a fit the model cannot explain: predict again with
         # the wider start search and keep the better-explained fit (bu3dfe test split: the one
-        # scan of 350 with eye corners 30-50 mm off; its retry lands them within 3-6 mm).
+        # scan of 350 with eye corners 30-50 mm off; the retry puts all 8 within 1-7 mm).
         from .landmarks import predict_landmarks
         from .landmarks.predict import RETRY_OVERRIDES
 
@@ -134,7 +134,7 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         timings["refit"] = time.perf_counter() - t1
         if reg2.details.get("fit_rms_mm", np.inf) < reg.details.get("fit_rms_mm", np.inf):
             reg, positions, confidence = reg2, pos2, dict(pred2.confidence)
-            flags = [f for f in flags if not f.startswith(("low_confidence", "patch_slid"))] + list(pred2.flags)
+            flags = list(pred2.flags)  # the first prediction's doubts no longer apply
             doubts = reg.implausible()
         flags.append("refit_wider_search_after_implausible_fit")
     flags += [f"implausible_fit:{d}" for d in doubts]
