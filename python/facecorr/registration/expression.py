@@ -239,7 +239,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     beta0 : optional (M,) starting identity weights (default zeros: the basis mean).
     round_offset : rounds already done (continuing an earlier fit): the identity prior's
         annealing resumes where it was.
-    **options : phi_deg (80), chin_start (0.8), mouth_stop (0.6), max_rounds (20),
+    **options : phi_deg (80), chin_start (0.8), mouth_stop (0.6), max_rounds (50),
         max_stage_rounds (8: a stage ends after this many rounds even if its valid share is
         not reached),
         alpha_tol (1e-3, max |Δα| to stop), max_distance (mm, 10; inf = the paper),
@@ -250,7 +250,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         alpha_prior (μ ≥ 0: adds μ W ‖α‖², W the total data weight; 0 = the paper),
         solver ("newton"|"lbfgsb"), point_to_point (λ in [0, 1): the energy becomes
         Σ ω_r [(1 − λ) ρ_plane² + λ ‖q_r − p_r‖²]; 0 = the paper),
-        identity_prior (μ_id, mm², 100), identity_prior_start (None or a larger μ_id to start
+        identity_prior (μ_id, mm², 15), identity_prior_start (None or a larger μ_id to start
         from, 1e4), identity_prior_decay (0.5: factor per round down to identity_prior),
         refine_rigid (True: 6 more unknowns, a small rotation about the centroid and a
         translation, linearised and re-solved each round; the transform is updated),
