@@ -13,6 +13,7 @@ pub mod curvature;
 pub mod raster;
 pub mod lbfgs;
 pub mod shape_fit;
+pub mod blend;
 
 #[cfg(feature = "python")]
 mod py;

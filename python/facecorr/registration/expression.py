@@ -60,7 +60,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ..mesh import Mesh
-from .._core import mesh_vertex_normals
+from .._core import blend_normal_equations, mesh_vertex_normals
 
 
 def _kdtree(points):
@@ -180,6 +180,107 @@ def box_qp(h, g, x0, lo=0.0, hi=1.0, max_iter=100) -> np.ndarray:
     return x
 
 
+class _BlendBasis:
+    """The K shape columns (blendshapes, then identity modes) of the fitted template, laid out
+    for the per-round products: ``flat`` (3N, K), row 3i + d = coordinate d of vertex i, and
+    ``by_coord`` (3, N, K), the same numbers one coordinate at a time."""
+
+    def __init__(self, cols: np.ndarray):  # cols: (K, N, 3)
+        self.n_vertices, self.k = cols.shape[1], cols.shape[0]
+        self.flat = np.ascontiguousarray(cols.transpose(1, 2, 0).reshape(-1, cols.shape[0]))
+        self.by_coord = np.ascontiguousarray(cols.transpose(2, 1, 0))
+        for a in (self.flat, self.by_coord):
+            a.flags.writeable = False
+
+    def offsets(self, x: np.ndarray) -> np.ndarray:
+        """(N, 3) Σ_k x_k A_k for weights x (K,) (template frame)."""
+        return (self.flat @ x).reshape(-1, 3)
+
+
+_BASIS_CACHE: dict = {}
+
+
+def _shape_basis(template, identity):
+    """(A0 (+ the identity mean) (N, 3), :class:`_BlendBasis`), cached for read-only inputs (the
+    packaged template and basis): building the layouts costs a few ms per fit."""
+    srcs = [np.asarray(template.vertices), np.asarray(template.blendshapes)]
+    if identity is not None:
+        srcs += [np.asarray(identity.mean), np.asarray(identity.modes)]
+    key = tuple(id(a) for a in srcs)
+    cacheable = not any(a.flags.writeable for a in srcs)
+    hit = _BASIS_CACHE.get(key) if cacheable else None
+    if hit is not None:
+        return hit[1], hit[2]
+    a0 = np.asarray(template.vertices, dtype=np.float64)
+    cols = np.asarray(template.blendshapes, dtype=np.float64)
+    if identity is not None:
+        # identity modes are extra columns: weights unbounded, with a Gaussian prior
+        a0 = a0 + identity.mean
+        cols = np.concatenate([cols, np.asarray(identity.modes, dtype=np.float64)])
+    basis = _BlendBasis(cols)
+    if cacheable:
+        if len(_BASIS_CACHE) >= 4:
+            _BASIS_CACHE.clear()
+        _BASIS_CACHE[key] = (srcs, a0, basis)  # srcs kept alive so their ids stay theirs
+    return a0, basis
+
+
+class _WeightedGram:
+    """G(w) = Σ_i w_i B_iᵀB_i (K, K) over the template vertices' basis rows B_i (3, K), updated
+    from the previous round's weights through the vertices whose weight changed only: between
+    ICP rounds a few per cent of the matches flip, so this is ~20x cheaper than the full sum,
+    which dominated a round (the point-to-point term's 3N x K rows)."""
+
+    def __init__(self, basis: _BlendBasis):
+        self.basis = basis
+        self.w = np.zeros(basis.n_vertices)
+        self.g = np.zeros((basis.k, basis.k))
+
+    def update(self, w: np.ndarray) -> np.ndarray:
+        ch = np.flatnonzero(w != self.w)
+        if len(ch):
+            dw = (w - self.w)[ch]
+            for bc in self.basis.by_coord:
+                rows = bc[ch]
+                self.g += rows.T @ (rows * dw[:, None])
+            self.w = w.copy()
+        return self.g
+
+
+def _normal_equations(basis: _BlendBasis, gram: _WeightedGram, lin, w, da, qn, v, lam, rigid):
+    """H, g, c of one ICP round's data energy E(x) = xᵀHx − 2gᵀx + c, with fixed matches.
+
+    E(x) = Σ_i w_i [(1 − λ) (c_i − J_i x)² + λ ‖da_i − S_i x‖²]: S_i = [L B_i | −[v_i]× | I]
+    (3, n_x) is the displacement of vertex i per unknown x = (α, β[, ω, t]) in the scan frame
+    (L the alignment's linear part, v_i the vertex relative to the rotation centre), J_i = n_iᵀS_i
+    its point-to-plane row and c_i = ⟨da_i, n_i⟩ with da_i = q_i − base_i.
+
+    Parameters: w (N,) weights (0 = no match), da (N, 3) mm, qn (N, 3) matched scan normals,
+    v (N, 3) mm (C-contiguous float64), lam λ, rigid: include the 6 rigid unknowns. Returns
+    ((n_x, n_x), (n_x,), float). All but the point-to-point shape block is one Rust pass over
+    the matched vertices (``_core.blend_normal_equations``; numpy reference in the tests).
+
+    The point-to-point block Σ w_i (L B_i)ᵀ(L B_i) is s² G(w) when L = sR (the default similarity
+    alignment, kept by the rigid refinement), from :class:`_WeightedGram`; otherwise summed.
+    """
+    k = basis.k
+    h, g, const = blend_normal_equations(basis.flat, np.ascontiguousarray(lin, dtype=np.float64), w, da, qn, v,
+                                         float(lam), bool(rigid))
+    if lam > 0.0:
+        mm = lin.T @ lin
+        s2 = float(np.trace(mm)) / 3.0
+        if np.abs(mm - s2 * np.eye(3)).max() <= 1e-10 * s2:
+            h[:k, :k] += lam * s2 * gram.update(w)
+        else:  # a general linear part (the paper's affine alignment): sum it
+            act = np.flatnonzero(w > 0.0)
+            bc = [b[act] for b in basis.by_coord]
+            lw = (lam * w[act])[:, None]
+            for a in range(3):
+                u = lin[a, 0] * bc[0] + lin[a, 1] * bc[1] + lin[a, 2] * bc[2]
+                h[:k, :k] += u.T @ (u * lw)
+    return h, g, const
+
+
 def _refit_affine(p0, q, qn, w, landmarks, landmark_weight, a0):
     """Least-squares 3x4 T minimising Σ w ⟨q − T p0, n⟩² + μ Σ_l ‖T l̄ − l‖² (None if singular)."""
     ph = np.hstack([p0, np.ones((len(p0), 1))])
@@ -271,21 +372,14 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         raise ValueError(f"solver must be 'newton' or 'lbfgsb', got {o['solver']!r}")
     t0 = time.perf_counter()
     T = np.asarray(transform, dtype=np.float64)
-    a0 = np.asarray(template.vertices, dtype=np.float64)
     k_expr = template.n_blendshapes
-    a_k = np.asarray(template.blendshapes, dtype=np.float64)
-    if identity is not None:
-        # identity modes are extra columns: weights unbounded, with a Gaussian prior (below)
-        a0 = a0 + identity.mean
-        a_k = np.concatenate([a_k, np.asarray(identity.modes, dtype=np.float64)])
-    # (N, 3, K) layout: a vertex's K shape offsets as columns, so a row gather + one 3x3 product
-    # gives the Jacobian rows of the active vertices in the scan frame
-    a_cols = np.ascontiguousarray(a_k.transpose(1, 2, 0))
+    a0, basis = _shape_basis(template, identity)
     base = a0 @ T[:, :3].T + T[:, 3]
+    gram = _WeightedGram(basis)
     if o["refine_affine"] and landmarks is None:
         raise ValueError("refine_affine needs the landmarks (template ids, scan positions)")
     faces = np.ascontiguousarray(template.faces, dtype=np.int64)
-    k = len(a_k)
+    k = basis.k
     regions = np.asarray(template.regions)
     upper, chin, mouth = (regions == 0), (regions == 1), (regions == 2)
     cos_full = np.cos(np.radians(o["phi_deg"]))
@@ -315,7 +409,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     rounds = []
     for _ in range(int(o["max_rounds"])):
         lin = T[:, :3]
-        p = base + (a_cols @ alpha) @ lin.T
+        p = base + basis.offsets(alpha) @ lin.T
         pn = mesh_vertex_normals(np.ascontiguousarray(p, dtype=np.float64), faces)
         dist, idx = tree.query(p, k=1)
         idx = np.asarray(idx, dtype=np.int64)
@@ -337,37 +431,14 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
             w_region = np.array([1.0, 1.0 - f_chin, (1.0 - f_mouth) if stage == 2 else 0.0])
         else:
             w_region = np.ones(3)
-        w_vert = np.where(valid, w_region[regions], 0.0)
-        # only the rows that count (valid matches, on the sample) enter the normal equations
-        act = np.flatnonzero((w_vert > 0.0) & sample)
-        w, qna, da = w_vert[act], qn[act], q[act] - base[act]
-        n_x = k + (6 if o["refine_rigid"] else 0)
-        s_act = np.zeros((len(act), 3, n_x))  # d p_i / d x in the scan frame, x = (α, β[, ω, t])
-        np.matmul(lin, a_cols[act], out=s_act[:, :, :k])
-        if o["refine_rigid"]:
-            # 6 more unknowns: a small rotation ω about the centroid and a translation t of the
-            # whole template, linearised (p -> p + ω × (p - c) + t) and solved afresh each round
-            ctr = p.mean(axis=0)
-            v = p[act] - ctr
-            rig = s_act[:, :, k:]
-            # d(ω × v)_d / dω: the rows of -[v]_x
-            rig[:, 0, 1], rig[:, 0, 2] = v[:, 2], -v[:, 1]
-            rig[:, 1, 0], rig[:, 1, 2] = -v[:, 2], v[:, 0]
-            rig[:, 2, 0], rig[:, 2, 1] = v[:, 1], -v[:, 0]
-            rig[:, :, 3:] = np.eye(3)
-        # residuals: plane c - J x (weight (1 - λ) w), point-to-point da - S x (weight λ w)
+        # only valid matches on the sample count
+        w_vert = np.where(valid & sample, w_region[regions], 0.0)
+        ctr = p.mean(axis=0)
         lam = float(o["point_to_point"])
-        c = np.einsum("ij,ij->i", da, qna)
-        J = np.matmul(qna[:, None, :], s_act)[:, 0, :]  # (n, n_x)
-        jw = J * ((1.0 - lam) * w)[:, None]
-        h = J.T @ jw
-        g = jw.T @ c
-        if lam > 0.0:
-            s_flat = s_act.reshape(-1, n_x)  # (3n, n_x), rows (vertex, coordinate)
-            sw = s_flat * np.repeat(lam * w, 3)[:, None]
-            h += s_flat.T @ sw
-            g += sw.T @ da.ravel()
-        w_total = float(w.sum())
+        h, g, const = _normal_equations(basis, gram, lin, w_vert, q - base, qn, p - ctr, lam,
+                                        bool(o["refine_rigid"]))
+        n_x = len(g)
+        w_total = float(w_vert.sum())
         # optional ridge prior μ W ‖α‖² (W = total data weight, so μ is in mm² per vertex)
         # and the identity prior μ_id ‖β‖² (β ~ N(0, 1) a priori; μ_id in mm²), which relaxes
         # geometrically from identity_prior_start to identity_prior
@@ -381,12 +452,11 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
             lo_x, hi_x = np.concatenate([lo, np.full(6, -np.inf)]), np.concatenate([hi, np.full(6, np.inf)])
         else:
             x0, lo_x, hi_x = alpha, lo, hi
+        h_data = h.copy()
         h[np.diag_indices(n_x)] += ridge
         if o["solver"] == "newton":
             a_new = box_qp(h, g, x0, lo_x, hi_x)
         else:
-            const = (1.0 - lam) * float(w @ (c * c)) + lam * float(np.repeat(w, 3) @ (da.ravel() ** 2))
-
             def f(a):  # the same quadratic: E(a) = aᵀHa − 2gᵀa + const
                 ha = h @ a
                 return float(a @ ha - 2.0 * g @ a + const), 2.0 * (ha - g)
@@ -394,11 +464,8 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
             bounds = [(None if np.isinf(a) else a, None if np.isinf(b) else b) for a, b in zip(lo_x, hi_x)]
             a_new = minimize(f, x0, jac=True, method="L-BFGS-B", bounds=bounds,
                              options={"maxiter": 200, "ftol": 1e-12, "gtol": 1e-9}).x
-        r_plane = c - J @ a_new
-        energy = (1.0 - lam) * float(w @ (r_plane * r_plane))
-        if lam > 0.0:
-            r_pp = da.ravel() - s_flat @ a_new
-            energy += lam * float(np.repeat(w, 3) @ (r_pp * r_pp))
+        # the data energy of the solution from the quadratic form (no second pass over the rows)
+        energy = max(float(a_new @ h_data @ a_new - 2.0 * g @ a_new + const), 0.0)
         moved = 0.0
         if o["refine_rigid"]:
             rot, tr = _rodrigues(a_new[k:k + 3]), a_new[k + 3:]
@@ -424,7 +491,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         step = max(step, moved / 10.0)  # 0.01 mm of rigid motion counts like 1e-3 of α
         stage_rounds += 1
         if o["refine_affine"]:
-            t_new = _refit_affine(a0 + np.tensordot(alpha, a_k, axes=1), q, qn, w_vert, landmarks,
+            t_new = _refit_affine(a0 + basis.offsets(alpha), q, qn, w_vert, landmarks,
                                   float(o["landmark_weight"]), a0)
             if t_new is not None:
                 moved = float(np.abs((a0 @ (t_new[:, :3] - T[:, :3]).T) + (t_new[:, 3] - T[:, 3])).max())
@@ -440,6 +507,6 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
                 continue
             rounds[-1]["stopped"] = "converged"
             break
-    p = base + (a_cols @ alpha) @ T[:, :3].T
+    p = base + basis.offsets(alpha) @ T[:, :3].T
     return ExpressionFit(alpha=alpha[:k_expr], vertices=p, rounds=rounds, seconds=time.perf_counter() - t0,
                          transform=T, identity_weights=alpha[k_expr:])

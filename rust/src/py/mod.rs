@@ -12,6 +12,7 @@ mod descriptors;
 mod curvature;
 mod raster;
 mod shape_fit;
+mod blend;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -24,5 +25,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     curvature::register(m)?;
     raster::register(m)?;
     shape_fit::register(m)?;
+    blend::register(m)?;
     Ok(())
 }
