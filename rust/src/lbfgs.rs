@@ -66,7 +66,7 @@ pub struct LbfgsReport {
 
 // Vector kernels: parallel above this length (rayon overhead dominates below it).
 const PAR_MIN: usize = 16_384;
-const CHUNK: usize = 8_192;
+const CHUNK: usize = 32_768;
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     if a.len() >= PAR_MIN {
@@ -122,14 +122,111 @@ fn set_step(a: &[f64], s: f64, d: &[f64], out: &mut [f64]) {
     }
 }
 
-/// out = a - b
-fn diff(a: &[f64], b: &[f64], out: &mut [f64]) {
-    if out.len() >= PAR_MIN {
-        out.par_chunks_mut(CHUNK)
-            .zip(a.par_chunks(CHUNK).zip(b.par_chunks(CHUNK)))
-            .for_each(|(o, (ac, bc))| o.iter_mut().zip(ac.iter().zip(bc)).for_each(|(p, (x, y))| *p = x - y));
-    } else {
-        out.iter_mut().zip(a.iter().zip(b)).for_each(|(p, (x, y))| *p = x - y);
+/// Apply `f` to matching chunks of the slices in parallel (sequentially below `PAR_MIN`) and
+/// add up what it returns: the building block of the fused passes below.
+fn chunked<const R: usize, const W: usize, O: Send + Copy + Default + std::ops::Add<Output = O>>(
+    read: [&[f64]; R],
+    write: [&mut [f64]; W],
+    f: impl Fn([&[f64]; R], [&mut [f64]; W]) -> O + Sync + Send,
+) -> O {
+    let n = read.first().map(|r| r.len()).or_else(|| write.first().map(|w| w.len())).unwrap_or(0);
+    if n < PAR_MIN {
+        return f(read, write);
+    }
+    let n_chunks = n.div_ceil(CHUNK);
+    let write_ptrs: [usize; W] = std::array::from_fn(|j| write[j].as_ptr() as usize);
+    (0..n_chunks)
+        .into_par_iter()
+        .map(|c| {
+            let (lo, hi) = (c * CHUNK, ((c + 1) * CHUNK).min(n));
+            let r: [&[f64]; R] = std::array::from_fn(|j| &read[j][lo..hi]);
+            // SAFETY: the chunks [lo, hi) are disjoint, so every chunk of a written slice is
+            // borrowed mutably by one task only; the slices outlive the parallel loop.
+            let w: [&mut [f64]; W] =
+                std::array::from_fn(|j| unsafe { std::slice::from_raw_parts_mut((write_ptrs[j] as *mut f64).add(lo), hi - lo) });
+            f(r, w)
+        })
+        .reduce(O::default, |a, b| a + b)
+}
+
+/// d = g, return s · d (one pass).
+fn copy_dot(g: &[f64], s: &[f64], d: &mut [f64]) -> f64 {
+    chunked([g, s], [d], |[g, s], [d]| {
+        d.copy_from_slice(g);
+        d.iter().zip(s).map(|(a, b)| a * b).sum::<f64>()
+    })
+}
+
+/// y += a x, then y ← −y, and return y · g (the last update of the two-loop recursion fused with
+/// the sign flip and the directional derivative).
+fn axpy_neg_dot(a: f64, x: &[f64], y: &mut [f64], g: &[f64]) -> f64 {
+    chunked([x, g], [y], |[x, g], [y]| {
+        y.iter_mut()
+            .zip(x)
+            .zip(g)
+            .map(|((p, q), r)| {
+                *p = -(*p + a * q);
+                *p * r
+            })
+            .sum::<f64>()
+    })
+}
+
+/// Sums of [`correction_pair`].
+#[derive(Clone, Copy, Default)]
+struct PairSums {
+    sy: f64,
+    yy: f64,
+    ss: f64,
+    g_max: f64,
+}
+
+impl std::ops::Add for PairSums {
+    type Output = PairSums;
+    fn add(self, o: PairSums) -> PairSums {
+        PairSums { sy: self.sy + o.sy, yy: self.yy + o.yy, ss: self.ss + o.ss, g_max: self.g_max.max(o.g_max) }
+    }
+}
+
+/// s = x_new − x, y = g_new − g, with sᵀy, yᵀy, sᵀs and ‖g_new‖∞, in one pass.
+fn correction_pair(x_new: &[f64], x: &[f64], g_new: &[f64], g: &[f64], s: &mut [f64], y: &mut [f64]) -> PairSums {
+    chunked([x_new, x, g_new, g], [s, y], |[xn, x, gn, g], [s, y]| {
+        let mut acc = PairSums::default();
+        for i in 0..s.len() {
+            let (si, yi) = (xn[i] - x[i], gn[i] - g[i]);
+            s[i] = si;
+            y[i] = yi;
+            acc.sy += si * yi;
+            acc.yy += yi * yi;
+            acc.ss += si * si;
+            acc.g_max = acc.g_max.max(gn[i].abs());
+        }
+        acc
+    })
+}
+
+/// An approximation P of the inverse Hessian for [`minimize_preconditioned`] (symmetric positive
+/// definite). Any `Fn(&mut [f64])` that overwrites v with P v is one; an implementation may
+/// also fuse the scaling and the quadratic form into its pass over v.
+pub trait Preconditioner {
+    /// v ← P v.
+    fn apply(&self, v: &mut [f64]);
+    /// v ← s P v.
+    fn apply_scaled(&self, v: &mut [f64], s: f64) {
+        self.apply(v);
+        v.iter_mut().for_each(|x| *x *= s);
+    }
+    /// vᵀ P v (v unchanged).
+    fn quad(&self, v: &[f64]) -> f64 {
+        let mut pv = v.to_vec();
+        self.apply(&mut pv);
+        dot(v, &pv)
+    }
+}
+
+impl<F: Fn(&mut [f64])> Preconditioner for F {
+    fn apply(&self, v: &mut [f64]) {
+        self(v)
     }
 }
 
@@ -172,15 +269,19 @@ where
 /// [`minimize`] with a preconditioner: `precond(v)` overwrites v with P v, P ≈ (∇²f)⁻¹
 /// symmetric positive definite. The initial matrix of the two-loop recursion becomes
 /// H0 = γ P with γ = sᵀy / yᵀPy (Nocedal & Wright §7.2; P = I gives [`minimize`]).
-pub fn minimize_preconditioned<F, P>(mut f: F, x: &mut [f64], opts: &LbfgsOptions, precond: Option<P>) -> LbfgsReport
+pub fn minimize_preconditioned<F, P>(mut f: F, x_out: &mut [f64], opts: &LbfgsOptions, precond: Option<P>) -> LbfgsReport
 where
     F: FnMut(&[f64], &mut [f64]) -> f64,
-    P: Fn(&mut [f64]),
+    P: Preconditioner,
 {
-    let n = x.len();
+    // Every vector operation below is one fused pass over its operands (the shape fit's vectors
+    // are ~10^5 long and each pass is memory-bound): per iteration 2k + 5 passes plus one per
+    // line-search trial, k ≤ m the stored pairs.
+    let n = x_out.len();
     let m = opts.memory.max(1);
+    let mut x = x_out.to_vec();
     let mut g = vec![0.0; n];
-    let mut fx = f(x, &mut g);
+    let mut fx = f(&x, &mut g);
     let mut evals = 1usize;
     if !fx.is_finite() {
         return LbfgsReport { value: fx, iterations: 0, evaluations: evals, termination: Termination::LineSearchFailed };
@@ -188,60 +289,60 @@ where
     if inf_norm(&g) <= opts.grad_tol {
         return LbfgsReport { value: fx, iterations: 0, evaluations: evals, termination: Termination::GradientTolerance };
     }
+    // Pairs in a ring: slot (head + i) % m is the i-th oldest of the `len` stored ones.
     let mut s_hist: Vec<Vec<f64>> = Vec::with_capacity(m);
     let mut y_hist: Vec<Vec<f64>> = Vec::with_capacity(m);
-    let mut rho_hist: Vec<f64> = Vec::with_capacity(m);
+    let mut rho_hist = vec![0.0; m];
+    let (mut head, mut len) = (0usize, 0usize);
+    // H0 = γ P with γ = sᵀy / yᵀPy of the newest pair (1 / ‖g‖∞, resp. 1 with P, before any)
+    let mut gamma = 1.0;
     let mut alpha = vec![0.0; m];
     let mut d = vec![0.0; n];
-    let mut py = if precond.is_some() { vec![0.0; n] } else { Vec::new() };
     let mut x_new = vec![0.0; n];
     let mut g_new = vec![0.0; n];
+    let (mut s_spare, mut y_spare) = (vec![0.0; n], vec![0.0; n]);
     let mut termination = Termination::MaxIterations;
     let mut iterations = 0;
 
     while iterations < opts.max_iter {
         // Two-loop recursion: d = -H g.
-        d.copy_from_slice(&g);
-        let k = s_hist.len();
-        if k > 0 {
-            let mut a = dot(&s_hist[k - 1], &d);
-            for i in (0..k).rev() {
-                alpha[i] = rho_hist[i] * a;
-                let next = if i > 0 { Some(&s_hist[i - 1][..]) } else { None };
-                a = axpy_dot(-alpha[i], &y_hist[i], &mut d, next);
-            }
+        let slot = |i: usize| (head + i) % m;
+        let mut dg0;
+        if len == 0 {
+            gamma = if precond.is_some() { 1.0 } else { 1.0 / inf_norm(&g).max(1e-300) };
         }
-        if let Some(p) = &precond {
-            let gamma = if k > 0 {
-                py.copy_from_slice(&y_hist[k - 1]);
-                p(&mut py);
-                1.0 / (rho_hist[k - 1] * dot(&y_hist[k - 1], &py))
-            } else {
-                // First step: P approximates the inverse Hessian, so the step P g is taken as is
-                // (a unit-length steepest-descent step needs several line-search trials).
-                1.0
-            };
-            p(&mut d);
-            d.iter_mut().for_each(|v| *v *= gamma);
+        if len > 0 {
+            let mut a = copy_dot(&g, &s_hist[slot(len - 1)], &mut d);
+            for i in (0..len).rev() {
+                let j = slot(i);
+                alpha[i] = rho_hist[j] * a;
+                let next = if i > 0 { Some(&s_hist[slot(i - 1)][..]) } else { None };
+                a = axpy_dot(-alpha[i], &y_hist[j], &mut d, next);
+            }
         } else {
-            let gamma = if k > 0 { 1.0 / (rho_hist[k - 1] * dot(&y_hist[k - 1], &y_hist[k - 1])) } else { 1.0 / inf_norm(&g).max(1e-300) };
-            d.iter_mut().for_each(|v| *v *= gamma);
+            d.copy_from_slice(&g);
         }
-        if k > 0 {
-            let mut b = dot(&y_hist[0], &d);
-            for i in 0..k {
-                let beta = rho_hist[i] * b;
-                let next = if i + 1 < k { Some(&y_hist[i + 1][..]) } else { None };
-                b = axpy_dot(alpha[i] - beta, &s_hist[i], &mut d, next);
+        match &precond {
+            Some(p) => p.apply_scaled(&mut d, gamma),
+            None => d.iter_mut().for_each(|v| *v *= gamma),
+        }
+        if len > 0 {
+            let mut b = dot(&y_hist[slot(0)], &d);
+            for i in 0..len - 1 {
+                let j = slot(i);
+                let beta = rho_hist[j] * b;
+                b = axpy_dot(alpha[i] - beta, &s_hist[j], &mut d, Some(&y_hist[slot(i + 1)]));
             }
+            let j = slot(len - 1);
+            let beta = rho_hist[j] * b;
+            dg0 = axpy_neg_dot(alpha[len - 1] - beta, &s_hist[j], &mut d, &g);
+        } else {
+            dg0 = axpy_neg_dot(0.0, &g, &mut d, &g);
         }
-        d.iter_mut().for_each(|v| *v = -*v);
-        let mut dg0 = dot(&d, &g);
         if !(dg0 < 0.0) {
             // Not a descent direction (lost positive definiteness): restart with steepest descent.
-            s_hist.clear();
-            y_hist.clear();
-            rho_hist.clear();
+            len = 0;
+            head = 0;
             let scale = 1.0 / inf_norm(&g).max(1e-300);
             d.iter_mut().zip(&g).for_each(|(p, q)| *p = -scale * q);
             // (the restart uses plain steepest descent even with a preconditioner: always descent)
@@ -258,7 +359,7 @@ where
         let mut bracket: Option<(f64, f64, f64, f64, f64, f64)> = None; // (lo, flo, glo, hi, fhi, ghi)
         let mut ls_evals = 0;
         while ls_evals < opts.max_linesearch {
-            set_step(x, a, &d, &mut x_new);
+            set_step(&x, a, &d, &mut x_new);
             let mut fa = f(&x_new, &mut g_new);
             evals += 1;
             ls_evals += 1;
@@ -293,7 +394,7 @@ where
             if let Some((mut lo, mut flo, mut glo, mut hi, mut fhi, mut ghi)) = bracket {
                 while ls_evals < opts.max_linesearch {
                     let aj = if ghi.is_finite() { cubic_min(lo, flo, glo, hi, fhi, ghi) } else { 0.5 * (lo + hi) };
-                    set_step(x, aj, &d, &mut x_new);
+                    set_step(&x, aj, &d, &mut x_new);
                     let fj = f(&x_new, &mut g_new);
                     evals += 1;
                     ls_evals += 1;
@@ -328,7 +429,7 @@ where
                 }
                 // Out of evaluations: take the best sufficient-decrease point of the bracket.
                 if accepted.is_none() && lo > 0.0 && flo < f0 {
-                    set_step(x, lo, &d, &mut x_new);
+                    set_step(&x, lo, &d, &mut x_new);
                     let fl = f(&x_new, &mut g_new);
                     evals += 1;
                     accepted = Some((lo, fl));
@@ -341,26 +442,45 @@ where
         };
         iterations += 1;
 
-        // Correction pair s = x_new - x, y = g_new - g (skipped unless curvature is positive).
-        let (mut s, mut y) = if s_hist.len() == m {
-            rho_hist.remove(0);
-            (s_hist.remove(0), y_hist.remove(0))
+        // Correction pair s = x_new - x, y = g_new - g (kept only if the curvature is positive);
+        // the oldest pair's buffers are reused once m are stored.
+        let (mut sv, mut yv) = if len == m {
+            let j = head;
+            head = (head + 1) % m;
+            len -= 1;
+            (std::mem::take(&mut s_hist[j]), std::mem::take(&mut y_hist[j]))
         } else {
-            (vec![0.0; n], vec![0.0; n])
+            (std::mem::take(&mut s_spare), std::mem::take(&mut y_spare))
         };
-        diff(&x_new, x, &mut s);
-        diff(&g_new, &g, &mut y);
-        let sy = dot(&s, &y);
-        if sy > 1e-12 * dot(&y, &y).sqrt() * dot(&s, &s).sqrt() && sy > 0.0 {
-            s_hist.push(s);
-            y_hist.push(y);
-            rho_hist.push(1.0 / sy);
+        if sv.len() != n {
+            sv = vec![0.0; n];
+            yv = vec![0.0; n];
         }
-        x.copy_from_slice(&x_new);
+        let ps = correction_pair(&x_new, &x, &g_new, &g, &mut sv, &mut yv);
+        if ps.sy > 1e-12 * ps.yy.sqrt() * ps.ss.sqrt() && ps.sy > 0.0 {
+            gamma = match &precond {
+                Some(p) => ps.sy / p.quad(&yv),
+                None => ps.sy / ps.yy,
+            };
+            let j = (head + len) % m;
+            if j < s_hist.len() {
+                s_hist[j] = sv;
+                y_hist[j] = yv;
+            } else {
+                s_hist.push(sv);
+                y_hist.push(yv);
+            }
+            rho_hist[j] = 1.0 / ps.sy;
+            len += 1;
+        } else {
+            s_spare = sv;
+            y_spare = yv;
+        }
+        std::mem::swap(&mut x, &mut x_new);
         std::mem::swap(&mut g, &mut g_new);
         let f_old = fx;
         fx = f_new;
-        if inf_norm(&g) <= opts.grad_tol {
+        if ps.g_max <= opts.grad_tol {
             termination = Termination::GradientTolerance;
             break;
         }
@@ -371,6 +491,7 @@ where
             break;
         }
     }
+    x_out.copy_from_slice(&x);
     LbfgsReport { value: fx, iterations, evaluations: evals, termination }
 }
 

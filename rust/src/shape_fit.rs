@@ -723,3 +723,56 @@ mod timing {
         });
     }
 }
+
+#[cfg(test)]
+mod timing_probe {
+    use super::*;
+    #[test]
+    #[ignore]
+    fn probe() {
+        let nx = 73;
+        let mut v = Vec::new();
+        for j in 0..nx { for i in 0..nx { v.push([i as f64 * 2.0 - 70.0, j as f64 * 2.0 - 70.0, 0.01 * ((i * j) as f64)]); } }
+        let mut f = Vec::new();
+        for j in 0..nx - 1 { for i in 0..nx - 1 { let a = j * nx + i; f.push([a, a + 1, a + nx + 1]); f.push([a, a + nx + 1, a + nx]); } }
+        let n = v.len();
+        let adj = Adjacency::from_faces(n, &f);
+        let corr = Correspondences { target: v.iter().map(|p| [p[0], p[1], p[2] + 1.0]).collect(), normal: vec![[0.0, 0.0, 1.0]; n], weight: vec![1.0; n], anchor: vec![None; n] };
+        let x: Vec<f64> = (0..n).flat_map(|_| IDENTITY).collect();
+        let mut g = vec![0.0; 12 * n];
+        let w = Weights { data: 1.0, smooth: 1000.0, rigid: 1.0, landmark: 0.0 };
+        crate::threads::install(|| {
+            for _ in 0..50 { energy_gradient(&x, &v, &adj, &corr, w, &mut g); }
+            let t = std::time::Instant::now();
+            for _ in 0..1000 { energy_gradient(&x, &v, &adj, &corr, w, &mut g); }
+            println!("energy_gradient {:.1} us", t.elapsed().as_secs_f64() * 1e3);
+            let pc = BlockPreconditioner::new(&v, &adj, &corr, w);
+            let t = std::time::Instant::now();
+            for _ in 0..1000 { pc.apply(&mut g); }
+            println!("precond apply {:.1} us", t.elapsed().as_secs_f64() * 1e3);
+            let t = std::time::Instant::now();
+            for _ in 0..100 { let _ = BlockPreconditioner::new(&v, &adj, &corr, w); }
+            println!("precond new {:.1} us", t.elapsed().as_secs_f64() * 1e4);
+            let t = std::time::Instant::now();
+            for _ in 0..100 { let d = deform(&x, &v); let _ = vertex_normals(&d, &f); }
+            println!("deform+normals {:.1} us", t.elapsed().as_secs_f64() * 1e4);
+            let scan = ScanTarget::new(v.iter().map(|p| [p[0] + 0.3, p[1] + 0.2, p[2] + 1.0]).collect(), vec![[0.0, 0.0, 1.0]; n], vec![false; n]);
+            let opts = ShapeFitOptions::default();
+            let d = deform(&x, &v); let nm = vertex_normals(&d, &f);
+            let t = std::time::Instant::now();
+            for _ in 0..100 { let _ = scan.correspond(&d, &nm, &opts); }
+            println!("correspond {:.1} us", t.elapsed().as_secs_f64() * 1e4);
+            let lopts = lbfgs::LbfgsOptions { memory: 5, max_iter: 20, rel_tol: 0.0, grad_tol: 0.0, ..Default::default() };
+            let mut per = Vec::new();
+            for _ in 0..15 {
+                let mut xx = x.clone();
+                for i in 0..n { xx[12 * i + 3] += 0.01 * ((i % 7) as f64); }
+                let t = std::time::Instant::now();
+                let rep = lbfgs::minimize_preconditioned(|a: &[f64], gg: &mut [f64]| energy_gradient(a, &v, &adj, &corr, w, gg).total, &mut xx, &lopts, Some(|q: &mut [f64]| pc.apply(q)));
+                per.push(t.elapsed().as_secs_f64() * 1e6 / rep.evaluations as f64);
+            }
+            per.sort_by(|a, b| a.partial_cmp(b).unwrap());
+            println!("lbfgs per eval median {:.1} us (min {:.1})", per[7], per[0]);
+        });
+    }
+}
