@@ -263,31 +263,69 @@ pub fn minimize<F>(f: F, x: &mut [f64], opts: &LbfgsOptions) -> LbfgsReport
 where
     F: FnMut(&[f64], &mut [f64]) -> f64,
 {
-    minimize_preconditioned(f, x, opts, None::<fn(&mut [f64])>)
+    minimize_preconditioned(f, x, opts, None::<&fn(&mut [f64])>)
 }
 
 /// [`minimize`] with a preconditioner: `precond(v)` overwrites v with P v, P ≈ (∇²f)⁻¹
 /// symmetric positive definite. The initial matrix of the two-loop recursion becomes
 /// H0 = γ P with γ = sᵀy / yᵀPy (Nocedal & Wright §7.2; P = I gives [`minimize`]).
-pub fn minimize_preconditioned<F, P>(mut f: F, x_out: &mut [f64], opts: &LbfgsOptions, precond: Option<P>) -> LbfgsReport
+pub fn minimize_preconditioned<F, P>(f: F, x_out: &mut [f64], opts: &LbfgsOptions, precond: Option<&P>) -> LbfgsReport
 where
     F: FnMut(&[f64], &mut [f64]) -> f64,
-    P: Preconditioner,
+    P: Preconditioner + ?Sized,
+{
+    minimize_preconditioned_in(&mut LbfgsWorkspace::default(), f, x_out, opts, precond)
+}
+
+/// Vectors of length n kept between calls of [`minimize_preconditioned_in`]: a fit that runs
+/// L-BFGS dozens of times on the same problem size would otherwise map ~2(m + 4) fresh
+/// vectors per call (large allocations come from mmap), paying a page fault per 4 KiB.
+#[derive(Default)]
+pub struct LbfgsWorkspace {
+    pool: Vec<Vec<f64>>,
+}
+
+impl LbfgsWorkspace {
+    fn take(&mut self, n: usize) -> Vec<f64> {
+        let mut v = self.pool.pop().unwrap_or_default();
+        v.clear();
+        v.resize(n, 0.0);
+        v
+    }
+    fn give(&mut self, v: Vec<f64>) {
+        if !v.is_empty() {
+            self.pool.push(v);
+        }
+    }
+}
+
+/// [`minimize_preconditioned`] with its vectors taken from (and returned to) `ws`.
+pub fn minimize_preconditioned_in<F, P>(
+    ws: &mut LbfgsWorkspace,
+    mut f: F,
+    x_out: &mut [f64],
+    opts: &LbfgsOptions,
+    precond: Option<&P>,
+) -> LbfgsReport
+where
+    F: FnMut(&[f64], &mut [f64]) -> f64,
+    P: Preconditioner + ?Sized,
 {
     // Every vector operation below is one fused pass over its operands (the shape fit's vectors
     // are ~10^5 long and each pass is memory-bound): per iteration 2k + 5 passes plus one per
     // line-search trial, k ≤ m the stored pairs.
     let n = x_out.len();
     let m = opts.memory.max(1);
-    let mut x = x_out.to_vec();
-    let mut g = vec![0.0; n];
+    let mut x = ws.take(n);
+    x.copy_from_slice(x_out);
+    let mut g = ws.take(n);
     let mut fx = f(&x, &mut g);
     let mut evals = 1usize;
-    if !fx.is_finite() {
-        return LbfgsReport { value: fx, iterations: 0, evaluations: evals, termination: Termination::LineSearchFailed };
-    }
-    if inf_norm(&g) <= opts.grad_tol {
-        return LbfgsReport { value: fx, iterations: 0, evaluations: evals, termination: Termination::GradientTolerance };
+    if !fx.is_finite() || inf_norm(&g) <= opts.grad_tol {
+        let termination = if fx.is_finite() { Termination::GradientTolerance } else { Termination::LineSearchFailed };
+        ws.give(x);
+        ws.give(g);
+        return LbfgsReport { value: fx, iterations: 0, evaluations: evals, termination };
     }
     // Pairs in a ring: slot (head + i) % m is the i-th oldest of the `len` stored ones.
     let mut s_hist: Vec<Vec<f64>> = Vec::with_capacity(m);
@@ -297,10 +335,10 @@ where
     // H0 = γ P with γ = sᵀy / yᵀPy of the newest pair (1 / ‖g‖∞, resp. 1 with P, before any)
     let mut gamma = 1.0;
     let mut alpha = vec![0.0; m];
-    let mut d = vec![0.0; n];
-    let mut x_new = vec![0.0; n];
-    let mut g_new = vec![0.0; n];
-    let (mut s_spare, mut y_spare) = (vec![0.0; n], vec![0.0; n]);
+    let mut d = ws.take(n);
+    let mut x_new = ws.take(n);
+    let mut g_new = ws.take(n);
+    let (mut s_spare, mut y_spare) = (ws.take(n), ws.take(n));
     let mut termination = Termination::MaxIterations;
     let mut iterations = 0;
 
@@ -453,8 +491,8 @@ where
             (std::mem::take(&mut s_spare), std::mem::take(&mut y_spare))
         };
         if sv.len() != n {
-            sv = vec![0.0; n];
-            yv = vec![0.0; n];
+            sv = ws.take(n);
+            yv = ws.take(n);
         }
         let ps = correction_pair(&x_new, &x, &g_new, &g, &mut sv, &mut yv);
         if ps.sy > 1e-12 * ps.yy.sqrt() * ps.ss.sqrt() && ps.sy > 0.0 {
@@ -492,6 +530,9 @@ where
         }
     }
     x_out.copy_from_slice(&x);
+    for v in [x, g, d, x_new, g_new, s_spare, y_spare].into_iter().chain(s_hist).chain(y_hist) {
+        ws.give(v);
+    }
     LbfgsReport { value: fx, iterations, evaluations: evals, termination }
 }
 
@@ -595,7 +636,7 @@ mod tests {
         let mut x0 = vec![0.0; n];
         let plain = minimize(f, &mut x0, &o);
         let mut x1 = vec![0.0; n];
-        let pre = minimize_preconditioned(f, &mut x1, &o, Some(|v: &mut [f64]| v.iter_mut().zip(&c).for_each(|(a, b)| *a /= b)));
+        let pre = minimize_preconditioned(f, &mut x1, &o, Some(&|v: &mut [f64]| v.iter_mut().zip(&c).for_each(|(a, b)| *a /= b)));
         assert_eq!(pre.termination, Termination::GradientTolerance);
         assert!(x1.iter().all(|v| (v - 1.0).abs() < 1e-6));
         assert!(pre.iterations <= 3 && plain.iterations > 20, "{pre:?} {plain:?}");

@@ -388,13 +388,21 @@ pub struct BlockPreconditioner {
 
 impl BlockPreconditioner {
     pub fn new(points: &[[f64; 3]], adj: &Adjacency, corr: &Correspondences, w: Weights) -> Self {
+        let mut pc = Self { dinv: Vec::new(), z: Vec::new(), coef: Vec::new() };
+        pc.rebuild(points, adj, corr, w);
+        pc
+    }
+
+    /// Recompute for new correspondences / weights, reusing the buffers.
+    pub fn rebuild(&mut self, points: &[[f64; 3]], adj: &Adjacency, corr: &Correspondences, w: Weights) {
         let n = points.len();
-        let mut dinv = vec![[0.0; 12]; n];
-        let mut z = vec![[0.0; 12]; n];
-        let mut coef = vec![0.0; n];
-        dinv.par_iter_mut()
-            .zip(z.par_iter_mut())
-            .zip(coef.par_iter_mut())
+        self.dinv.resize(n, [0.0; 12]);
+        self.z.resize(n, [0.0; 12]);
+        self.coef.resize(n, 0.0);
+        self.dinv
+            .par_iter_mut()
+            .zip(self.z.par_iter_mut())
+            .zip(self.coef.par_iter_mut())
             .enumerate()
             .with_min_len(256)
             .for_each(|(i, ((di, zi), ci))| {
@@ -426,9 +434,10 @@ impl BlockPreconditioner {
                         }
                     }
                     *ci = beta / (1.0 + beta * utdu);
+                } else {
+                    *ci = 0.0;
                 }
             });
-        Self { dinv, z, coef }
     }
 
     /// v ← P v.
@@ -441,6 +450,33 @@ impl BlockPreconditioner {
                 vi[k] = d[k] * vi[k] - c * z[k] * zv;
             }
         });
+    }
+}
+
+impl lbfgs::Preconditioner for BlockPreconditioner {
+    fn apply(&self, v: &mut [f64]) {
+        BlockPreconditioner::apply(self, v)
+    }
+    fn apply_scaled(&self, v: &mut [f64], s: f64) {
+        v.par_chunks_mut(12).enumerate().with_min_len(256).for_each(|(i, vi)| {
+            let (d, z, c) = (&self.dinv[i], &self.z[i], self.coef[i]);
+            let zv: f64 = if c != 0.0 { (0..12).map(|k| z[k] * vi[k]).sum() } else { 0.0 };
+            for k in 0..12 {
+                vi[k] = s * (d[k] * vi[k] - c * z[k] * zv);
+            }
+        });
+    }
+    fn quad(&self, v: &[f64]) -> f64 {
+        // vᵀ(D⁻¹ − c zzᵀ)v per block, without writing P v
+        v.par_chunks(12)
+            .enumerate()
+            .with_min_len(256)
+            .map(|(i, vi)| {
+                let (d, z, c) = (&self.dinv[i], &self.z[i], self.coef[i]);
+                let zv: f64 = if c != 0.0 { (0..12).map(|k| z[k] * vi[k]).sum() } else { 0.0 };
+                (0..12).map(|k| d[k] * vi[k] * vi[k]).sum::<f64>() - c * zv * zv
+            })
+            .sum()
     }
 }
 
@@ -474,6 +510,9 @@ pub fn fit(
     );
     let adj = Adjacency::from_faces(n, faces);
     let mut x: Vec<f64> = (0..n).flat_map(|_| IDENTITY).collect();
+    // buffers reused by every solve (fresh ~0.5 MB vectors per solve cost a page fault per 4 KiB)
+    let mut ws = lbfgs::LbfgsWorkspace::default();
+    let mut pc = BlockPreconditioner { dinv: Vec::new(), z: Vec::new(), coef: Vec::new() };
     let lopts = LbfgsOptions { memory: opts.memory, max_iter: opts.max_iter, rel_tol: opts.rel_tol, grad_tol: 1e-12, ..Default::default() };
     let mut solves = Vec::new();
     let mut w = Weights { data: opts.w_data, smooth: opts.w_smooth, rigid: opts.w_rigid, landmark: opts.w_landmark };
@@ -495,10 +534,10 @@ pub fn fit(
             let t_solve = std::time::Instant::now();
             let energy = |xx: &[f64], g: &mut [f64]| energy_gradient(xx, &pts, &adj, &corr, w, g).total;
             let rep = if opts.precondition {
-                let pc = BlockPreconditioner::new(&pts, &adj, &corr, w);
-                lbfgs::minimize_preconditioned(energy, &mut x, &lopts, Some(|v: &mut [f64]| pc.apply(v)))
+                pc.rebuild(&pts, &adj, &corr, w);
+                lbfgs::minimize_preconditioned_in(&mut ws, energy, &mut x, &lopts, Some(&pc))
             } else {
-                lbfgs::minimize(energy, &mut x, &lopts)
+                lbfgs::minimize_preconditioned_in(&mut ws, energy, &mut x, &lopts, None::<&BlockPreconditioner>)
             };
             let seconds_solve = t_solve.elapsed().as_secs_f64();
             let ep = energy_gradient(&x, &pts, &adj, &corr, w, &mut gbuf);
@@ -676,103 +715,3 @@ mod tests {
     }
 }
 
-#[cfg(test)]
-mod timing {
-    use super::*;
-    use std::time::Instant;
-
-    /// `cargo test --profile fast --lib timing -- --ignored --nocapture`
-    #[test]
-    #[ignore]
-    fn energy_eval_cost() {
-        let nx = 82;
-        let mut v = Vec::new();
-        for j in 0..nx {
-            for i in 0..nx {
-                v.push([i as f64 * 2.0 - 80.0, j as f64 * 2.0 - 80.0, 0.01 * (i * j) as f64]);
-            }
-        }
-        let mut f = Vec::new();
-        for j in 0..nx - 1 {
-            for i in 0..nx - 1 {
-                let a = j * nx + i;
-                f.push([a, a + 1, a + nx + 1]);
-                f.push([a, a + nx + 1, a + nx]);
-            }
-        }
-        let n = v.len();
-        let adj = Adjacency::from_faces(n, &f);
-        let corr = Correspondences { target: v.clone(), normal: vec![[0.0, 0.0, 1.0]; n], weight: vec![1.0; n], anchor: vec![None; n] };
-        let x: Vec<f64> = (0..n).flat_map(|_| IDENTITY).collect();
-        let mut g = vec![0.0; 12 * n];
-        let w = Weights { data: 1.0, smooth: 100.0, rigid: 1.0, landmark: 0.0 };
-        crate::threads::install(|| {
-            let t = Instant::now();
-            for _ in 0..200 {
-                energy_gradient(&x, &v, &adj, &corr, w, &mut g);
-            }
-            eprintln!("n = {n}: energy+gradient {:.3} ms", t.elapsed().as_secs_f64() * 1e3 / 200.0);
-            let t = Instant::now();
-            let mut s = 0.0;
-            for _ in 0..200 {
-                for _ in 0..40 {
-                    s += x.iter().zip(&g).map(|(a, b)| a * b).sum::<f64>();
-                }
-            }
-            eprintln!("40 serial dots of 12n: {:.3} ms ({s})", t.elapsed().as_secs_f64() * 1e3 / 200.0);
-        });
-    }
-}
-
-#[cfg(test)]
-mod timing_probe {
-    use super::*;
-    #[test]
-    #[ignore]
-    fn probe() {
-        let nx = 73;
-        let mut v = Vec::new();
-        for j in 0..nx { for i in 0..nx { v.push([i as f64 * 2.0 - 70.0, j as f64 * 2.0 - 70.0, 0.01 * ((i * j) as f64)]); } }
-        let mut f = Vec::new();
-        for j in 0..nx - 1 { for i in 0..nx - 1 { let a = j * nx + i; f.push([a, a + 1, a + nx + 1]); f.push([a, a + nx + 1, a + nx]); } }
-        let n = v.len();
-        let adj = Adjacency::from_faces(n, &f);
-        let corr = Correspondences { target: v.iter().map(|p| [p[0], p[1], p[2] + 1.0]).collect(), normal: vec![[0.0, 0.0, 1.0]; n], weight: vec![1.0; n], anchor: vec![None; n] };
-        let x: Vec<f64> = (0..n).flat_map(|_| IDENTITY).collect();
-        let mut g = vec![0.0; 12 * n];
-        let w = Weights { data: 1.0, smooth: 1000.0, rigid: 1.0, landmark: 0.0 };
-        crate::threads::install(|| {
-            for _ in 0..50 { energy_gradient(&x, &v, &adj, &corr, w, &mut g); }
-            let t = std::time::Instant::now();
-            for _ in 0..1000 { energy_gradient(&x, &v, &adj, &corr, w, &mut g); }
-            println!("energy_gradient {:.1} us", t.elapsed().as_secs_f64() * 1e3);
-            let pc = BlockPreconditioner::new(&v, &adj, &corr, w);
-            let t = std::time::Instant::now();
-            for _ in 0..1000 { pc.apply(&mut g); }
-            println!("precond apply {:.1} us", t.elapsed().as_secs_f64() * 1e3);
-            let t = std::time::Instant::now();
-            for _ in 0..100 { let _ = BlockPreconditioner::new(&v, &adj, &corr, w); }
-            println!("precond new {:.1} us", t.elapsed().as_secs_f64() * 1e4);
-            let t = std::time::Instant::now();
-            for _ in 0..100 { let d = deform(&x, &v); let _ = vertex_normals(&d, &f); }
-            println!("deform+normals {:.1} us", t.elapsed().as_secs_f64() * 1e4);
-            let scan = ScanTarget::new(v.iter().map(|p| [p[0] + 0.3, p[1] + 0.2, p[2] + 1.0]).collect(), vec![[0.0, 0.0, 1.0]; n], vec![false; n]);
-            let opts = ShapeFitOptions::default();
-            let d = deform(&x, &v); let nm = vertex_normals(&d, &f);
-            let t = std::time::Instant::now();
-            for _ in 0..100 { let _ = scan.correspond(&d, &nm, &opts); }
-            println!("correspond {:.1} us", t.elapsed().as_secs_f64() * 1e4);
-            let lopts = lbfgs::LbfgsOptions { memory: 5, max_iter: 20, rel_tol: 0.0, grad_tol: 0.0, ..Default::default() };
-            let mut per = Vec::new();
-            for _ in 0..15 {
-                let mut xx = x.clone();
-                for i in 0..n { xx[12 * i + 3] += 0.01 * ((i % 7) as f64); }
-                let t = std::time::Instant::now();
-                let rep = lbfgs::minimize_preconditioned(|a: &[f64], gg: &mut [f64]| energy_gradient(a, &v, &adj, &corr, w, gg).total, &mut xx, &lopts, Some(|q: &mut [f64]| pc.apply(q)));
-                per.push(t.elapsed().as_secs_f64() * 1e6 / rep.evaluations as f64);
-            }
-            per.sort_by(|a, b| a.partial_cmp(b).unwrap());
-            println!("lbfgs per eval median {:.1} us (min {:.1})", per[7], per[0]);
-        });
-    }
-}
