@@ -89,18 +89,8 @@ unsafe fn accumulate_avx2(acc: &mut Acc, chunk: &[usize], ctx: &Ctx) {
 /// Add the matched vertices `chunk` to `acc`.
 #[inline(always)]
 fn accumulate(acc: &mut Acc, chunk: &[usize], ctx: &Ctx) {
-    let Ctx {
-        basis,
-        k,
-        lin,
-        w,
-        da,
-        qn,
-        v,
-        lam,
-        rigid,
-        n_x,
-    } = *ctx;
+    #[rustfmt::skip]
+    let Ctx { basis, k, lin, w, da, qn, v, lam, rigid, n_x } = *ctx;
     let pw_scale = 1.0 - lam;
     for &i in chunk {
         let wi = w[i];
@@ -210,18 +200,8 @@ pub fn normal_equations(
     );
     let n_x = k + if rigid { 6 } else { 0 };
     let active: Vec<usize> = (0..n).filter(|&i| w[i] > 0.0).collect();
-    let ctx = Ctx {
-        basis,
-        k,
-        lin,
-        w,
-        da,
-        qn,
-        v,
-        lam,
-        rigid,
-        n_x,
-    };
+    #[rustfmt::skip]
+    let ctx = Ctx { basis, k, lin, w, da, qn, v, lam, rigid, n_x };
     let avx2 = has_avx2_fma();
     let acc = active
         .par_chunks(256)
@@ -264,49 +244,6 @@ mod tests {
         ((*seed >> 11) as f64) / ((1u64 << 53) as f64) - 0.5
     }
 
-    /// E(x) by its definition, for checking xᵀHx − 2gᵀx + c (with the shape block added).
-    #[allow(clippy::too_many_arguments)]
-    fn energy(
-        x: &[f64],
-        basis: &[f64],
-        k: usize,
-        lin: &[[f64; 3]; 3],
-        w: &[f64],
-        da: &[[f64; 3]],
-        qn: &[[f64; 3]],
-        v: &[[f64; 3]],
-        lam: f64,
-    ) -> f64 {
-        let mut e = 0.0;
-        for i in 0..w.len() {
-            if w[i] <= 0.0 {
-                continue;
-            }
-            let mut off = [0.0; 3]; // B_i a
-            for d in 0..3 {
-                off[d] = (0..k).map(|c| basis[(3 * i + d) * k + c] * x[c]).sum();
-            }
-            let mut s = [0.0; 3];
-            for r in 0..3 {
-                s[r] = lin[r][0] * off[0] + lin[r][1] * off[1] + lin[r][2] * off[2];
-            }
-            let (om, t) = (&x[k..k + 3], &x[k + 3..k + 6]);
-            let vi = v[i];
-            let cr = [
-                om[1] * vi[2] - om[2] * vi[1],
-                om[2] * vi[0] - om[0] * vi[2],
-                om[0] * vi[1] - om[1] * vi[0],
-            ];
-            for r in 0..3 {
-                s[r] += cr[r] + t[r];
-            }
-            let rp = dot3(&da[i], &qn[i]) - dot3(&s, &qn[i]);
-            let rr: f64 = (0..3).map(|r| (da[i][r] - s[r]).powi(2)).sum();
-            e += w[i] * ((1.0 - lam) * rp * rp + lam * rr);
-        }
-        e
-    }
-
     #[test]
     fn quadratic_form_reproduces_the_energy() {
         let (n, k) = (40, 5);
@@ -327,6 +264,37 @@ mod tests {
             })
             .collect();
         let lam = 0.3;
+        // E(x) by its definition, for checking xᵀHx − 2gᵀx + c (with the shape block added)
+        let energy = |x: &[f64]| -> f64 {
+            let mut e = 0.0;
+            for i in 0..w.len() {
+                if w[i] <= 0.0 {
+                    continue;
+                }
+                let mut off = [0.0; 3]; // B_i a
+                for d in 0..3 {
+                    off[d] = (0..k).map(|c| basis[(3 * i + d) * k + c] * x[c]).sum();
+                }
+                let mut s = [0.0; 3];
+                for r in 0..3 {
+                    s[r] = lin[r][0] * off[0] + lin[r][1] * off[1] + lin[r][2] * off[2];
+                }
+                let (om, t) = (&x[k..k + 3], &x[k + 3..k + 6]);
+                let vi = v[i];
+                let cr = [
+                    om[1] * vi[2] - om[2] * vi[1],
+                    om[2] * vi[0] - om[0] * vi[2],
+                    om[0] * vi[1] - om[1] * vi[0],
+                ];
+                for r in 0..3 {
+                    s[r] += cr[r] + t[r];
+                }
+                let rp = dot3(&da[i], &qn[i]) - dot3(&s, &qn[i]);
+                let rr: f64 = (0..3).map(|r| (da[i][r] - s[r]).powi(2)).sum();
+                e += w[i] * ((1.0 - lam) * rp * rp + lam * rr);
+            }
+            e
+        };
         let ne = normal_equations(&basis, k, &lin, &w, &da, &qn, &v, lam, true);
         let nx = ne.n_x;
         // add the shape block λ Σ w (L B_i)ᵀ(L B_i) the caller supplies
@@ -353,7 +321,7 @@ mod tests {
             let q: f64 = x.iter().zip(&hx).map(|(a, b)| a * b).sum::<f64>()
                 - 2.0 * x.iter().zip(&ne.g).map(|(a, b)| a * b).sum::<f64>()
                 + ne.c;
-            let e = energy(&x, &basis, k, &lin, &w, &da, &qn, &v, lam);
+            let e = energy(&x);
             assert!((q - e).abs() <= 1e-10 * e.abs().max(1.0), "trial {trial}: {q} vs {e}");
         }
         for a in 0..nx {
