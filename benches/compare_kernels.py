@@ -26,8 +26,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from facecorr.geodesic import GeodesicSolver
-from facecorr.spatial import KDTree
+from facecorr.geometry.geodesic import GeodesicSolver
+from facecorr.geometry.spatial import KDTree
 
 ICT = Path(__file__).resolve().parents[1] / "python" / "facecorr" / "data" / "ict" / "ict_face_model.npz"
 

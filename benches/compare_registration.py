@@ -40,7 +40,7 @@ def run_peer(template, mesh, lms_arr, transform):
     import trimesh
     from trimesh.registration import nricp_amberg
 
-    from facecorr.registration.affine import apply_transform
+    from facecorr.registration.alignment import apply_transform
 
     src = trimesh.Trimesh(apply_transform(transform, template.vertices), template.faces, process=False)
     tgt = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
@@ -51,7 +51,7 @@ def run_peer(template, mesh, lms_arr, transform):
 
 
 def measure(template, verts, gt, mesh):
-    from facecorr import evaluate
+    from facecorr.evaluation import metrics as evaluate
 
     reg = evaluate.region_errors(verts, gt["ibug68"], template)
     dense = evaluate.dense_error(verts, gt["dense"], template)
@@ -75,11 +75,11 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-peer", action="store_true", help="only run facecorr")
     args = ap.parse_args(argv)
 
-    from facecorr import evaluate
+    from facecorr.evaluation import metrics as evaluate
     from facecorr.io import load_mesh
     from facecorr.names import IBUG68_REGIONS, LANDMARK_NAMES
     from facecorr.registration import register
-    from facecorr.registration.affine import align_landmarks
+    from facecorr.registration.alignment import align_landmarks
     from facecorr.synth import load_index
     from facecorr.template import load_template
 

@@ -19,8 +19,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import ref_mesh as R  # noqa: E402
 
-from facecorr import curvature as C  # noqa: E402
-from facecorr.mesh import Mesh  # noqa: E402
+from facecorr.geometry import curvature as C  # noqa: E402
+from facecorr.geometry.mesh import Mesh  # noqa: E402
 
 
 def _normalize(x):

@@ -34,10 +34,10 @@ def main():
     a = ap.parse_args()
 
     from facecorr.io import load_mesh
-    from facecorr.landmarks.evaluate import METHODS
+    from facecorr.evaluation.landmarks import METHODS
     from facecorr.landmarks.model import load_model
     from facecorr.landmarks.predict import predict_landmarks
-    from facecorr.mesh import Mesh
+    from facecorr.geometry.mesh import Mesh
     from facecorr.names import LANDMARK_NAMES
     from facecorr.synth import load_index
 

@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from facecorr import _core
-from facecorr import curvature as C
+from facecorr.geometry import curvature as C
 
 
 def face_like_grid(n=224, seed=0):

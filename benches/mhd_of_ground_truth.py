@@ -14,8 +14,8 @@ import json
 import numpy as np
 
 from facecorr.io import load_mesh
-from facecorr.registration_eval import select_eval_records
-from facecorr.spatial import KDTree
+from facecorr.evaluation.registration import select_eval_records
+from facecorr.geometry.spatial import KDTree
 from facecorr.synth import load_index
 from facecorr.synth.generate import model_vertices
 from facecorr.template import load_template

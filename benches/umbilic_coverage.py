@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecorr import curvature as C
+from facecorr.geometry import curvature as C
 from facecorr.io import load_mesh
 from facecorr.names import LANDMARK_NAMES
 from facecorr.synth import load_index
@@ -61,7 +61,7 @@ def main(db, n=10):
 def main_ict(draws=20):
     from importlib.resources import files
 
-    from facecorr.mesh import Mesh
+    from facecorr.geometry.mesh import Mesh
     from facecorr.names import LANDMARK_IBUG68
 
     d = np.load(files("facecorr") / "data/ict/ict_face_model.npz")

@@ -9,7 +9,7 @@ vertices (the template is cut from the same model).
 
 import numpy as np
 
-from facecorr.mesh import Mesh
+from facecorr.geometry.mesh import Mesh
 from facecorr.names import LANDMARK_IBUG68, LANDMARK_NAMES
 from facecorr.template import ICT_MODEL_PATH, load_template
 

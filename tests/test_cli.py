@@ -69,7 +69,7 @@ def test_register_nan_mesh(tmp_path):
 def test_atomic_write_leaves_usual_permissions_and_nothing_on_failure(tmp_path):
     import os
 
-    from facecorr.fileio import atomic_path, write_json
+    from facecorr.io.atomic import atomic_path, write_json
 
     write_json(tmp_path / "a.json", {"x": 1})
     umask = os.umask(0)
@@ -120,7 +120,7 @@ def test_batch_survives_a_bad_scan_and_resumes(tmp_path, one_scan):
 
 def test_register_with_given_landmarks_in_other_units(tmp_path, one_scan):
     """--landmarks in cm on a scan saved in cm: the result comes back in the scan's frame and units."""
-    from facecorr import evaluate
+    from facecorr.evaluation import metrics as evaluate
     from facecorr.io import load_mesh, save_mesh
 
     gt = evaluate.load_ground_truth(one_scan["gt"], load_dense=False)

@@ -5,9 +5,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import ref_mesh as R
-from facecorr import curvature as C
+from facecorr.geometry import curvature as C
 from facecorr.errors import MeshError
-from facecorr.mesh import Mesh
+from facecorr.geometry.mesh import Mesh
 from facecorr.names import LANDMARK_IBUG68
 
 

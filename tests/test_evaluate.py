@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from facecorr import evaluate, names
+from facecorr.evaluation import metrics as evaluate
+from facecorr import names
 from facecorr.errors import FacecorrError
 from facecorr.template import ICT_MODEL_PATH, load_template
 

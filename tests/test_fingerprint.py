@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from facecorr.descriptors import fingerprint
-from facecorr.geodesic import GeodesicSolver
+from facecorr.geometry.descriptors import fingerprint
+from facecorr.geometry.geodesic import GeodesicSolver
 from ref_kernels import fingerprint_reference, grid_mesh, ict_face_mesh, sphere_mesh
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from facecorr.geodesic import GeodesicSolver, distances
+from facecorr.geometry.geodesic import GeodesicSolver, distances
 from ref_kernels import (
     dijkstra_reference,
     exact_geodesic_reference,

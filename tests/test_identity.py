@@ -9,11 +9,11 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 
 from facecorr.errors import FacecorrError
-from facecorr.landmarks.alignment import kabsch
-from facecorr.mesh import Mesh
+from facecorr.geometry.transforms import kabsch
+from facecorr.geometry.mesh import Mesh
 from facecorr.registration.expression import fit_expression
-from facecorr.registration.identity import (IdentityBasis, basis_from_shapes, load_identity_basis,
-                                            reconstruct_template)
+from facecorr.registration.identity import IdentityBasis, load_identity_basis
+from facecorr.registration.identity_training import basis_from_shapes, reconstruct_template
 from facecorr.template import load_template
 
 
@@ -130,7 +130,7 @@ def test_refine_rigid_corrects_a_misaligned_start():
     scan, r, t = _posed(tpl, alpha, np.zeros(0), zero, rng)
     axis = rng.standard_normal(3)
     axis /= np.linalg.norm(axis)
-    from facecorr.registration.expression import _rodrigues
+    from facecorr.geometry.transforms import rotation_from_vector as _rodrigues
 
     off = _rodrigues(np.radians(2.0) * axis)
     start = np.hstack([off @ r, (t + [1.5, 0, 0])[:, None]])

@@ -9,7 +9,7 @@ from hypothesis import HealthCheck, assume, given, settings, strategies as st
 import ref_mesh as R
 from facecorr import io
 from facecorr.errors import MeshError, MeshFileError, UnitsError
-from facecorr.mesh import Mesh
+from facecorr.geometry.mesh import Mesh
 
 
 def face_like():

@@ -6,7 +6,7 @@ from hypothesis import given, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial import cKDTree
 
-from facecorr.spatial import KDTree
+from facecorr.geometry.spatial import KDTree
 
 
 def _assert_same_knn(d, i, dr, ir, n):

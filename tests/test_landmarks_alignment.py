@@ -5,7 +5,8 @@ import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from facecorr.landmarks.alignment import align_graph, kabsch
+from facecorr.geometry.transforms import kabsch
+from facecorr.landmarks.paper.alignment import align_graph
 
 # A plausible landmark graph Pa (template frame: +y up, +z out, subject's right at -x), mm.
 PA = np.array([

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from facecorr.landmarks.bp import brute_force_map, joint_score, max_product
+from facecorr.landmarks.paper.bp import brute_force_map, joint_score, max_product
 
 
 def _random_network(rng, edges, n, kmax=4):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from facecorr.landmarks.classify import fit_classifier, medoid
+from facecorr.landmarks.paper.classify import fit_classifier, medoid
 
 
 def _data(seed=0, n=60, s=10, classes=4):

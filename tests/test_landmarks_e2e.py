@@ -93,7 +93,7 @@ def test_cli_json_contract(trained, tmp_path):
 
 def test_hopeless_input_is_flagged_or_refused(trained):
     from facecorr.landmarks import predict_landmarks
-    from facecorr.mesh import Mesh
+    from facecorr.geometry.mesh import Mesh
 
     _, _, model, _ = trained
     # a flat sheet: no face at all
@@ -132,7 +132,7 @@ def test_eval_landmarks_cli_writes_tables(trained, tmp_path, method):
 
 def _cut(mesh, keep):
     """The sub-mesh of the faces whose 3 vertices are kept (unused vertices dropped)."""
-    from facecorr.mesh import Mesh
+    from facecorr.geometry.mesh import Mesh
 
     f = mesh.faces[keep[mesh.faces].all(axis=1)]
     used = np.unique(f)

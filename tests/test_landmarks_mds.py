@@ -5,9 +5,8 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from facecorr.landmarks.alignment import kabsch
-from facecorr.landmarks.mds import (canonical_form, classical_mds, farthest_point_sample,
-                                    place_out_of_sample, smacof, stress)
+from facecorr.geometry.transforms import kabsch
+from facecorr.landmarks.paper.mds import canonical_form, classical_mds, farthest_point_sample, place_out_of_sample, smacof, stress
 
 
 def _grid(nu=41, nv=21, width=120.0, height=60.0):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from facecorr.errors import ModelError
-from facecorr.landmarks.classify import fit_classifier
+from facecorr.landmarks.paper.classify import fit_classifier
 from facecorr.landmarks.model import FORMAT_VERSION, LandmarkModel, load_model
 
 

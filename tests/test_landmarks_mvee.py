@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.optimize import minimize
 
-from facecorr.landmarks.mvee import DegenerateError, mvee
+from facecorr.landmarks.paper.mvee import DegenerateError, mvee
 
 
 def _brute_force_log_volume(points: np.ndarray) -> float:

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from facecorr.landmarks.evaluate import landmark_table, markdown
-from facecorr.landmarks.features import voxel_subsample
+from facecorr.evaluation.landmarks import landmark_table, markdown
+from facecorr.geometry.spatial import voxel_subsample
 from facecorr.landmarks.gaussian import fit_gaussian, log_density, mahalanobis2
-from facecorr.landmarks.predict import _two_side_init
+from facecorr.landmarks.paper.search import _two_side_init
 from facecorr.names import LANDMARK_NAMES
 
 

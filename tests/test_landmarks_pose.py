@@ -5,12 +5,13 @@ import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from facecorr.landmarks.pose import axis_angle, fit_pose, normal_sweep_starts, rotation_between, trimmed_icp
+from facecorr.geometry.transforms import axis_angle, rotation_between
+from facecorr.landmarks.pose import fit_pose, normal_sweep_starts, trimmed_icp
 
 
 def _grid_normals(p, n):
     """Unit vertex normals of an n x n height-field grid (from its triangulation)."""
-    from facecorr.mesh import Mesh
+    from facecorr.geometry.mesh import Mesh
 
     idx = np.arange(n * n).reshape(n, n)
     a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()

@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 import ref_mesh as R
 from facecorr import _core
 from facecorr.errors import MeshError
-from facecorr.mesh import Mesh
+from facecorr.geometry.mesh import Mesh
 
 
 def random_mesh(rng, n=60, m=120, n_pieces=1):

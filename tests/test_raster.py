@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from facecorr.raster import rasterize
+from facecorr.geometry.raster import rasterize
 
 
 def rasterize_reference(uv, depth, tris, width, height):

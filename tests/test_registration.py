@@ -12,9 +12,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from synthetic_face import make_scan  # noqa: E402
 
 from facecorr.errors import RegistrationError
-from facecorr.mesh import Mesh
+from facecorr.geometry.mesh import Mesh
 from facecorr.names import LANDMARK_NAMES
-from facecorr.registration import register
+from facecorr.registration import ExpressionOptions, RegisterOptions, ShapeFitOptions, register
 from facecorr.registration.expression import box_qp, fit_expression
 from facecorr.template import load_template
 
@@ -92,10 +92,11 @@ def test_open_mouth_teeth_do_not_pull_the_lips():
     mesh, lms, gt, _ = make_scan(1, expression={"jawOpen": 0.9, "mouthStretch_L": 0.3, "mouthStretch_R": 0.3})
     lips = tpl.ibug68[48:60]
     lips = lips[lips >= 0]
-    unguarded = dict(expression_max_distance=np.inf, expression_lip_rim_rings=-1, shape_lip_rim_rings=-1)
+    unguarded = dict(expression=ExpressionOptions(max_distance=np.inf, lip_rim_rings=-1), shape_lip_rim_rings=-1)
 
     def lip_error(**kw):
-        return np.linalg.norm(register(mesh, lms, template=tpl, **kw).vertices[lips] - gt[lips], axis=1).mean()
+        res = register(mesh, lms, template=tpl, options=RegisterOptions(**kw))
+        return np.linalg.norm(res.vertices[lips] - gt[lips], axis=1).mean()
 
     e_guarded, e_bare = lip_error(jaw_starts=(0.0,)), lip_error(jaw_starts=(0.0,), **unguarded)
     assert e_guarded < 3.0, e_guarded
@@ -113,15 +114,17 @@ def test_register_rejects_bad_input():
     bad["nose_tip"] = [np.nan, 0, 0]
     with pytest.raises(RegistrationError, match="NaN"):
         register(mesh, bad, template=tpl)
-    with pytest.raises(TypeError, match="unknown option"):
-        register(mesh, lms, template=tpl, shape_nlevels=3)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'shape_nlevels'"):
+        RegisterOptions(shape_nlevels=3)
     with pytest.raises(ValueError, match="alignment"):
-        register(mesh, lms, template=tpl, alignment="rigid")
+        RegisterOptions(alignment="rigid")
+    with pytest.raises(TypeError, match="RegisterOptions"):
+        register(mesh, lms, template=tpl, options={"alignment": "affine"})
 
 
 def _turned_about_the_nose(lms, degrees):
     """The landmarks rotated about the nose tip around the face's depth axis (a wrong pose)."""
-    from facecorr.registration.expression import _rodrigues
+    from facecorr.geometry.transforms import rotation_from_vector as _rodrigues
 
     pts = np.array([lms[n] for n in LANDMARK_NAMES], float)
     tip = np.asarray(lms["nose_tip"], float)
@@ -137,7 +140,8 @@ def test_a_fit_from_wrongly_posed_landmarks_is_called_implausible():
     mesh, lms, gt, _ = make_scan(3)
     good = register(mesh, lms, template=tpl)
     assert good.implausible() == [], good.details.get("fit_rms_mm")
-    bad = register(mesh, _turned_about_the_nose(lms, 35.0), template=tpl, shape_landmark_weight=0.0)
+    bad = register(mesh, _turned_about_the_nose(lms, 35.0), template=tpl,
+                   options=RegisterOptions(shape=ShapeFitOptions(w_landmark=0.0)))
     reasons = bad.implausible()
     assert reasons and any(r.startswith(("fit_rms", "identity_chi2")) for r in reasons), reasons
 
@@ -145,22 +149,24 @@ def test_a_fit_from_wrongly_posed_landmarks_is_called_implausible():
 def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch):
     """First prediction wrong (turned 35 degrees), the wider search right: the refit is kept."""
     import facecorr.landmarks as lm_pkg
-    from facecorr.landmarks.predict import LandmarkResult
+    from facecorr.landmarks.predict import LandmarkResult, PredictOptions
     from facecorr.pipeline import correspond
 
     tpl = load_template()
     mesh, lms, gt, _ = make_scan(3)
     calls = []
 
-    def fake_predict(mesh_, model=None, **options):
+    wider = PredictOptions().wider()
+
+    def fake_predict(mesh_, model=None, options=None):
         calls.append(options)
-        pos = lms if options else _turned_about_the_nose(lms, 35.0)
+        pos = lms if options == wider else _turned_about_the_nose(lms, 35.0)
         return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[],
                               timings_s={"total": 0.0})
 
     monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
     res = correspond(mesh, template=tpl)
-    assert len(calls) == 2 and calls[1]  # the second call is the wider search
+    assert calls == [PredictOptions(), wider]  # the second call is the wider search
     assert "refit_wider_search_after_implausible_fit" in res.flags
     assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
     assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5

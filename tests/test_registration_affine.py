@@ -5,8 +5,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from facecorr.errors import RegistrationError
-from facecorr.registration.affine import (affine_lstsq, affine_quasi_newton, align_landmarks, apply_transform,
-                                          landmark_energy, similarity_umeyama)
+from facecorr.registration.alignment import affine_lstsq, affine_quasi_newton, align_landmarks, apply_transform, landmark_energy, similarity_umeyama
 from facecorr.template import load_template
 
 

@@ -14,7 +14,7 @@ from facecorr.io import load_mesh
 from facecorr.names import LANDMARK_IBUG68, LANDMARK_NAMES
 from facecorr.synth import (SynthError, generate, generate_scan, load_ict, load_index, model_vertices, scan_list,
                             subject_split)
-from facecorr.synth.commands import main as synth_main
+from facecorr.cli.synth import main as synth_main
 from facecorr.synth.scanner import closest_point_on_triangles
 
 SEED = 3

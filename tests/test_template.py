@@ -197,7 +197,7 @@ def test_build_is_deterministic_and_matches_packaged_file(t):
 
 
 def test_cli_json_and_png(tmp_path, capsys):
-    from facecorr.template_commands import add_commands
+    from facecorr.cli.template import add_commands
 
     parser = argparse.ArgumentParser()
     add_commands(parser.add_subparsers(dest="command"))
@@ -221,7 +221,7 @@ def test_cli_json_and_png(tmp_path, capsys):
 
 def test_cli_bad_input(tmp_path):
     from facecorr.errors import FacecorrError
-    from facecorr.template_commands import add_commands
+    from facecorr.cli.template import add_commands
 
     parser = argparse.ArgumentParser()
     add_commands(parser.add_subparsers(dest="command"))
@@ -233,7 +233,7 @@ def test_cli_bad_input(tmp_path):
 
 
 def test_visible_points_depth_test():
-    from facecorr.template_commands import visible_points
+    from facecorr.cli.template import visible_points
 
     # a square in the z = 0 plane facing +z; points above it are seen, below it hidden
     v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
@@ -248,7 +248,7 @@ def test_visible_points_depth_test():
 def test_template_is_what_scanners_see():
     """Every template vertex outside the eye/mouth openings' rims faces some scanner view: the
     nostril tubes are gone (a face cut from the ICT head without them would fail this)."""
-    from facecorr.render import view_rotation
+    from facecorr.geometry.transforms import view_rotation
     from facecorr.template import visible_points
 
     t = load_template()

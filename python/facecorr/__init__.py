@@ -9,12 +9,29 @@ Main entry points::
     lms = facecorr.predict_landmarks(mesh)            # 8 landmarks + confidence
     result = facecorr.correspond(mesh)                # template registered onto the scan
     result.save("registered.ply", "registered.json")
+
+The layer rule: the package is built in floors, and a module imports only from its own package
+or from a lower floor (never upwards, never sideways between two packages of one floor);
+``tests/test_layers.py`` reads every import, function-level ones too, and enforces it.
+
+    7  cli                              every sub-command; nothing imports it
+    6  evaluation                       tables and metrics on a synthetic database
+    5  pipeline                         one scan end to end; many scans (batch)
+    4  landmarks, registration          the two stages
+    3  template, synth, render          the template, the synthetic database, all plotting
+    2  io                               meshes in and out, atomic writes
+    1  geometry                         Mesh, KD-tree, geodesics, descriptors, curvature, transforms
+    0  errors, names, threads, _core    the base
 """
 
-from . import descriptors, errors, geodesic, spatial
+from . import errors
+from ._aliases import install as _install_aliases
 from ._core import __version__
+from .geometry import descriptors, geodesic, spatial
+from .geometry.mesh import Mesh
 from .io import load_mesh, save_mesh
-from .mesh import Mesh
+
+_install_aliases()
 
 __all__ = [
     "Mesh", "load_mesh", "save_mesh", "predict_landmarks", "correspond", "load_template",

@@ -36,3 +36,6 @@ EXPRESSIONS = {
     "SA": "sadness",
     "SU": "surprise",
 }
+
+#: Indices into LANDMARK_NAMES of the nose points (the nose-first search and the patch radii).
+R_SUBALARE, L_SUBALARE, NOSE_TIP, SUBNASAL = 4, 5, 6, 7

@@ -9,23 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def kabsch(src: np.ndarray, dst: np.ndarray):
-    """Rigid (R, t) minimising sum ||R src_i + t - dst_i||^2 (rows are points, (n, 3))."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    h = (src - cs).T @ (dst - cd)
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return r, cd - r @ cs
-
-
-def view_rotation(yaw_deg: float = 0.0, pitch_deg: float = 0.0) -> np.ndarray:
-    """(3, 3) rotation applied to face-frame points (+y up, +z towards the viewer) before drawing."""
-    y, p = np.radians(yaw_deg), np.radians(pitch_deg)
-    ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
-    rx = np.array([[1, 0, 0], [0, np.cos(p), -np.sin(p)], [0, np.sin(p), np.cos(p)]])
-    return rx @ ry
+from .geometry.transforms import kabsch
+from .names import LANDMARK_NAMES
 
 
 def draw_mesh(ax, vertices, faces, *, rotation=None, values=None, cmap="viridis", vmin=None,
@@ -82,3 +67,42 @@ def draw_mesh(ax, vertices, faces, *, rotation=None, values=None, cmap="viridis"
     ax.set_aspect("equal")
     ax.axis("off")
     return mappable
+
+
+def plot_registration(mesh, result, path, template, title=None) -> None:
+    """PNG of the scan (a Mesh) beside the registered template (a pipeline Result) coloured by
+    point-to-plane distance (mm).
+
+    Both are drawn in the template's frame (a rigid fit of the result onto the template's rest
+    pose), front view, like the paper's Fig. 11.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .io.atomic import atomic_path
+
+    r, t = kabsch(result.vertices, np.asarray(template.vertices, float))
+    scan_v = mesh.vertices @ r.T + t
+    reg_v = result.vertices @ r.T + t
+    # point-to-plane distance from each registered vertex to its nearest scan vertex's tangent plane
+    dist, idx = mesh.kdtree.query(result.vertices, k=1)
+    n = mesh.vertex_normals[idx]
+    p2p = np.abs(np.einsum("ij,ij->i", result.vertices - mesh.vertices[idx], n))
+    centre = reg_v.mean(axis=0)
+    keep = np.linalg.norm(scan_v - centre, axis=1) < 1.3 * np.linalg.norm(reg_v - centre, axis=1).max()
+    fkeep = keep[mesh.faces].all(axis=1)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 5.5))
+    lm = np.array([result.landmarks[k] for k in LANDMARK_NAMES]) @ r.T + t
+    draw_mesh(axes[0], scan_v, mesh.faces[fkeep], points=lm)
+    axes[0].set_title("scan (red: the landmarks used)")
+    sm = draw_mesh(axes[1], reg_v, result.faces, values=p2p, cmap="turbo", vmin=0.0, vmax=1.0)
+    axes[1].set_title(f"registered template, MHD {result.mhd:.2f} mm")
+    fig.colorbar(sm, ax=axes[1], fraction=0.04, label="point-to-plane distance to scan [mm] (clamped at 1)")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)

@@ -13,28 +13,35 @@ def spawn_context():
     return multiprocessing.get_context("spawn")
 
 
-def process_map(fn, jobs, *, workers=2, desc="working", progress=True) -> list:
-    """``[fn(j) for j in jobs]`` over ``workers`` spawned processes (in order), with a progress bar.
+def process_iter(fn, jobs, *, workers=2, desc="working", progress=True, ordered=True):
+    """Yield ``fn(j)`` for each job, computed in ``workers`` spawned processes, with a progress bar.
 
-    ``fn`` must be a module-level function (picklable); with one worker or one job it runs here.
+    ``ordered`` yields in job order, else as each finishes (a batch can record results as they
+    come). ``fn`` must be a module-level function (picklable); with one worker or one job it runs
+    here.
     """
     from tqdm import tqdm
 
     jobs = list(jobs)
-    bar = tqdm(total=len(jobs), desc=desc, unit="scan", disable=not progress)
-    out = []
-    try:
+    with tqdm(total=len(jobs), desc=desc, unit="scan", disable=not progress) as bar:
         if workers > 1 and len(jobs) > 1:
-            from concurrent.futures import ProcessPoolExecutor
+            from concurrent.futures import ProcessPoolExecutor, as_completed
 
             with ProcessPoolExecutor(max_workers=workers, mp_context=spawn_context()) as ex:
-                for r in ex.map(fn, jobs):
-                    out.append(r)
+                if ordered:
+                    results = ex.map(fn, jobs)
+                else:
+                    results = (f.result() for f in as_completed([ex.submit(fn, j) for j in jobs]))
+                for r in results:
                     bar.update()
+                    yield r
         else:
             for j in jobs:
-                out.append(fn(j))
+                r = fn(j)
                 bar.update()
-    finally:
-        bar.close()
-    return out
+                yield r
+
+
+def process_map(fn, jobs, *, workers=2, desc="working", progress=True) -> list:
+    """``[fn(j) for j in jobs]`` over ``workers`` spawned processes (in order), with a progress bar."""
+    return list(process_iter(fn, jobs, workers=workers, desc=desc, progress=progress))

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..names import LANDMARK_NAMES
-from .classify import Classifier
+from .paper.classify import Classifier
 
 FORMAT_VERSION = 1
 
@@ -87,7 +87,7 @@ class LandmarkModel:
 
     def save(self, path) -> None:
         """Write the model atomically (a complete file or none)."""
-        from ..fileio import atomic_path
+        from ..io.atomic import atomic_path
 
         c = self.classifier
         arrays = dict(

@@ -15,28 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .alignment import kabsch
-
-
-def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """A rotation (3, 3) taking unit vector a to unit vector b."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
-    v = np.cross(a, b)
-    c = float(a @ b)
-    if c < -1 + 1e-9:  # opposite: rotate by pi about any axis orthogonal to a
-        axis = np.cross(a, [1.0, 0, 0]) if abs(a[0]) < 0.9 else np.cross(a, [0, 1.0, 0])
-        axis /= np.linalg.norm(axis)
-        return 2 * np.outer(axis, axis) - np.eye(3)
-    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + vx + vx @ vx / (1 + c)
-
-
-def axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
-    """Rotation (3, 3) by ``angle`` (radians) about unit ``axis`` (Rodrigues)."""
-    k = axis / np.linalg.norm(axis)
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+from ..geometry.transforms import axis_angle, kabsch, rotation_between, rotation_from_vector
 
 
 def normal_sweep_starts(tip_tpl: np.ndarray, normal_tpl: np.ndarray, tip_scan: np.ndarray,
@@ -56,10 +35,7 @@ def _point_to_plane_step(p: np.ndarray, q: np.ndarray, n: np.ndarray):
     a = np.hstack([np.cross(p, n), n])  # (k, 6): rows [p x n, n]
     b = np.einsum("ij,ij->i", q - p, n)
     x, *_ = np.linalg.lstsq(a, b, rcond=None)
-    w, dt = x[:3], x[3:]
-    angle = float(np.linalg.norm(w))
-    dr = axis_angle(w, angle) if angle > 1e-12 else np.eye(3)
-    return dr, dt
+    return rotation_from_vector(x[:3]), x[3:]
 
 
 def trimmed_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters: int = 20,
@@ -136,20 +112,15 @@ def batch_icp(points: np.ndarray, tree, starts, iters: int = 8, keep: float = 0.
         j = np.take_along_axis(idx, order, 1)
         q = scan[j]
         if normals is None:
-            cp, cq = p.mean(1, keepdims=True), q.mean(1, keepdims=True)
-            u, _, vt = np.linalg.svd(np.einsum("ski,skj->sij", p - cp, q - cq))
-            fix = np.ones((n_s, 3))
-            fix[:, 2] = np.sign(np.linalg.det(np.einsum("sji,skj->sik", vt, u)))
-            dr = np.einsum("sji,sj,skj->sik", vt, fix, u)
-            dt = cq[:, 0] - np.einsum("sij,sj->si", dr, cp[:, 0])
+            steps = [kabsch(p[k], q[k]) for k in range(n_s)]
+            dr, dt = np.array([s[0] for s in steps]), np.array([s[1] for s in steps])
         else:
             n = normals[j]
             a = np.concatenate([np.cross(p, n), n], axis=2)
             b = np.einsum("ski,ski->sk", q - p, n)
             x = np.linalg.solve(np.einsum("ski,skj->sij", a, a) + 1e-9 * np.eye(6),
                                 np.einsum("ski,sk->si", a, b)[..., None])[..., 0]
-            dr = np.array([axis_angle(w, float(np.linalg.norm(w))) if np.linalg.norm(w) > 1e-12 else np.eye(3)
-                           for w in x[:, :3]])
+            dr = np.array([rotation_from_vector(w) for w in x[:, :3]])
             dt = x[:, 3:]
         rs = np.einsum("sij,sjk->sik", dr, rs)
         ts = np.einsum("sij,sj->si", dr, ts) + dt
@@ -189,9 +160,6 @@ def similarity_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters
     a rigid template; the scale absorbs that. Returns (R (3, 3), scale, t (3,), trimmed RMS mm)
     for ``x -> scale * R x + t``.
     """
-    from ..errors import RegistrationError
-    from ..registration.affine import similarity_umeyama
-
     scan = tree.data
     n_keep = max(6, int(keep * len(points)))
     s, prev, rms = 1.0, np.inf, np.inf
@@ -203,9 +171,7 @@ def similarity_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters
             break
         prev = rms
         try:
-            m = similarity_umeyama(points[order], scan[np.asarray(idx)[order]])
-        except RegistrationError:  # matches collapsed onto a line (not a face): keep the last pose
+            r, s, t = kabsch(points[order], scan[np.asarray(idx)[order]], with_scale=True)
+        except ValueError:  # matches collapsed onto a line (not a face): keep the last pose
             break
-        s = float(np.cbrt(np.linalg.det(m[:, :3])))
-        r, t = m[:, :3] / s, m[:, 3]
     return r, s, t, rms

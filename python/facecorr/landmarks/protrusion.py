@@ -1,5 +1,5 @@
 """Nose-tip candidates by protrusion: the pose search's starting points (replaces the paper's
-umbilic + FPPCA nose-first start by default; see ``PREDICT_DEFAULTS["start_search"]``).
+umbilic + FPPCA nose-first start by default; see ``PredictOptions.start_search``).
 
 At a large scale the nose tip is the most protruding point of a face: over a ball of radius
 ``radius`` (25 mm by default: nose, cheeks and upper lip) it stands 10-12 mm off the ball's
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .features import voxel_subsample
+from ..geometry.spatial import voxel_subsample
 
 
 def ball_protrusion(points: np.ndarray, normals: np.ndarray, radius: float, tree=None):
@@ -35,7 +35,7 @@ def ball_protrusion(points: np.ndarray, normals: np.ndarray, radius: float, tree
     plane_normal : (P, 3) unit normal of that plane, oriented like ``normals``;
     count : (P,) points in each ball.
     """
-    from ..spatial import KDTree
+    from ..geometry.spatial import KDTree
 
     points = np.asarray(points, dtype=np.float64)
     tree = KDTree(points) if tree is None else tree

@@ -34,8 +34,8 @@ import numpy as np
 from ..errors import FacecorrError
 from ..names import LANDMARK_NAMES
 from ..threads import process_map
-from .alignment import kabsch
-from .classify import fit_classifier
+from ..geometry.transforms import kabsch
+from .paper.classify import fit_classifier
 from .gaussian import fit_gaussian
 from .model import DEFAULT_PARAMS, LandmarkModel
 
@@ -49,9 +49,9 @@ class TrainingError(FacecorrError, ValueError):
 def template_pose_points(spacing: float = 5.0, radius: float = 85.0):
     """ICP points (P, 3) of the template's upper face within ``radius`` mm of the nose tip,
     voxel-subsampled to ``spacing`` mm, and the unit normal (3,) at the template nose tip."""
-    from ..mesh import Mesh
+    from ..geometry.mesh import Mesh
     from ..template import REGION_NAMES, load_template
-    from .features import voxel_subsample
+    from ..geometry.spatial import voxel_subsample
 
     tpl = load_template()
     v = np.asarray(tpl.vertices, dtype=np.float64)
@@ -85,13 +85,13 @@ def scan_training_sample(scan_path, landmarks_mm: np.ndarray, graph_points: np.n
     Returns dict with fp (8, S), rel (E, 3), offset (8, 3), nose_d (4, 4), snap (8,) mm, ...
     """
     from ..io import load_mesh
-    from .features import ScanFeatures
+    from .paper.features import ScanFeatures
     from .pose import trimmed_icp
 
     t0 = time.perf_counter()
     p = dict(DEFAULT_PARAMS, **(params or {}))
     mesh = load_mesh(scan_path, units="mm")
-    feat = ScanFeatures(mesh.vertices, mesh.faces, radii)
+    feat = ScanFeatures(mesh, radii)
     lms = np.asarray(landmarks_mm, dtype=np.float64)
     snap_d, vid = feat.tree.query(lms)
     vid = np.asarray(vid, dtype=np.int64)

@@ -54,21 +54,14 @@ with them vs up to 11 mm without):
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import minimize
 
-from ..mesh import Mesh
+from ..geometry.mesh import Mesh
+from ..geometry.transforms import rotation_angle, rotation_from_vector
 from .._core import blend_normal_equations, mesh_vertex_normals
-
-
-def _kdtree(points):
-    try:
-        from ..spatial import KDTree
-    except ImportError:  # the Rust KD-tree (facecorr.spatial) until it has landed
-        from scipy.spatial import cKDTree as KDTree
-    return KDTree(points)
 
 
 def rim_mask(template, rings: int) -> np.ndarray:
@@ -108,46 +101,48 @@ class ExpressionFit:
     identity_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-EXPRESSION_DEFAULTS = dict(
-    phi_deg=80.0,
-    chin_start=0.8,
-    mouth_stop=0.6,
+@dataclass(frozen=True)
+class ExpressionOptions:
+    """Settings of :func:`fit_expression` (lengths in mm, angles in degrees); see the module docstring for each choice and BENCHMARKS.md for the measurements behind the defaults."""
+
+    phi_deg: float = 80.0
+    chin_start: float = 0.8
+    mouth_stop: float = 0.6
     # nearest-vertex ICP creeps: with the identity modes, 70 bu3dfe test scans (predicted
     # landmarks, identity_prior 15): 40 rounds dense 1.509 mm, 50 rounds 1.486, 70 / 100 1.488
-    max_rounds=50,
-    max_stage_rounds=8,
-    alpha_tol=1e-3,
-    max_distance=10.0,
-    reject_boundary=True,
-    lip_rim_rings=1,
-    weights="uniform",
-    solver="newton",
-    point_to_point=0.3,
-    refine_affine=False,
-    landmark_weight=1.0,
+    max_rounds: int = 50
+    max_stage_rounds: int = 8
+    alpha_tol: float = 1e-3
+    max_distance: float = 10.0
+    reject_boundary: bool = True
+    lip_rim_rings: int = 1
+    weights: str = "uniform"
+    solver: str = "newton"
+    point_to_point: float = 0.3
+    refine_affine: bool = False
+    landmark_weight: float = 1.0
     # with the identity basis (identity.py), 70 bu3dfe test scans, predicted landmarks, dense /
     # eyebrows / mouth mm: alpha_prior 0.3 -> 1.69 / 1.92 / 1.38, 1.0 -> 1.68 / 1.83 / 1.39
-    alpha_prior=1.0,
+    alpha_prior: float = 1.0
     # β prior in mm² (modes are 1 σ), relaxed from 10000 by halving per round: a stiff start
     # lets the rigid pose and the expression settle before the identity moves (14 scans with true
     # landmarks, an earlier basis: dense 1.85 mm with a fixed prior of 1000, 1.68 annealed).
     # Final prior, 70 test scans, 40 rounds, dense / eyebrows mm: 5 -> 1.528 / 1.64, 15 -> 1.509 /
     # 1.59, 30 -> 1.521 / 1.62, 50 -> 1.545 / 1.64 (20 rounds: 30 -> 1.662, 100 -> 1.682)
-    identity_prior=15.0,
-    identity_prior_start=1e4,
-    sample_stride=1,
+    identity_prior: float = 15.0
+    identity_prior_start: float = 1e4
+    sample_stride: int = 1
     # re-solve a small rigid motion each round (the similarity from 8 landmarks is ~1 mm off)
-    refine_rigid=True,
+    refine_rigid: bool = True
     # A round's step is halved when it is not smaller than the last one and ("reversal") points
     # back against it: an oscillation; "growth" halves any step not smaller than the last, which
     # also brakes the slow creep of ICP along one direction. When consecutive steps agree (cosine
     # > 0.9) the step is stretched by ``overrelax``. 70 test scans (dense / eyebrows mm,
     # expression s in a 2-process pool): growth 1.489 / 1.57, 1.52, 0.91 s; reversal 1.461 /
     # 1.49, 1.47, 0.82 s; reversal + overrelax 1.5: 1.457 / 1.48, 1.47, 0.79 s; 2.0: 1.458, 0.78 s.
-    damping="reversal",
-    overrelax=1.5,
-    identity_prior_decay=0.5,
-)
+    damping: str = "reversal"
+    overrelax: float = 1.5
+    identity_prior_decay: float = 0.5
 
 
 def box_qp(h, g, x0, lo=0.0, hi=1.0, max_iter=100) -> np.ndarray:
@@ -305,32 +300,15 @@ def _refit_affine(p0, q, qn, w, landmarks, landmark_weight, a0):
     return t
 
 
-def _rodrigues(omega: np.ndarray) -> np.ndarray:
-    """Rotation matrix of the rotation vector omega (radians)."""
-    theta = float(np.linalg.norm(omega))
-    if theta < 1e-15:
-        return np.eye(3)
-    kx = np.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]], [-omega[1], omega[0], 0.0]]) / theta
-    return np.eye(3) + np.sin(theta) * kx + (1.0 - np.cos(theta)) * kx @ kx
-
-
-def _rot_angle(rot: np.ndarray) -> float:
-    return float(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0)))
-
-
-def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None, scan_boundary=None,
-                   landmarks=None, alpha0=None, identity=None, beta0=None, round_offset: int = 0,
-                   **options) -> ExpressionFit:
+def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None, identity=None, beta0=None,
+                   round_offset: int = 0, options: ExpressionOptions | None = None, **overrides) -> ExpressionFit:
     """Fit the blendshape weights of ``template`` to ``scan`` (paper §4.2).
 
     Parameters
     ----------
     template : facecorr.template.Template (vertices A0, blendshapes A_k, regions, faces).
     transform : (3, 4) the landmark alignment T_A (template frame -> scan frame).
-    scan : Mesh, mm.
-    tree : optional KD-tree over ``scan.vertices`` (built if None).
-    scan_normals, scan_boundary : optional precomputed (S, 3) unit normals and (S,) bool boundary
-        flags of the scan (computed if None).
+    scan : Mesh, mm; its cached KD-tree, vertex normals and boundary flags are used.
     landmarks : optional (template vertex ids (L,), scan positions (L, 3)) for ``refine_affine``.
     alpha0 : optional (K,) starting weights in [0, 1] (default zeros: the neutral template).
     identity : optional :class:`facecorr.registration.identity.IdentityBasis`: its M modes are
@@ -340,35 +318,36 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     beta0 : optional (M,) starting identity weights (default zeros: the basis mean).
     round_offset : rounds already done (continuing an earlier fit): the identity prior's
         annealing resumes where it was.
-    **options : phi_deg (80), chin_start (0.8), mouth_stop (0.6), max_rounds (50),
-        max_stage_rounds (8: a stage ends after this many rounds even if its valid share is
-        not reached),
-        alpha_tol (1e-3, max |Δα| to stop), max_distance (mm, 10; inf = the paper),
-        reject_boundary (True), lip_rim_rings (1; -1 = keep the rim), weights ("paper"|"uniform"),
+    options : ExpressionOptions (default ``ExpressionOptions()``); ``**overrides`` change its
+        fields. Their meaning: phi_deg (normal test), chin_start / mouth_stop (the paper's stage
+        shares), max_rounds, max_stage_rounds (a stage ends after this many rounds even if its
+        valid share is not reached), alpha_tol (max |Δα| to stop), max_distance (mm; inf = the
+        paper), reject_boundary, lip_rim_rings (-1 = keep the rim), weights ("paper"|"uniform"),
         refine_affine (False: T_A stays the landmark alignment, the paper; True: after each α
         solve, T_A is re-solved by linear least squares on the same point-to-plane matches plus
         the landmarks, weight ``landmark_weight`` x the total data weight spread over them),
         alpha_prior (μ ≥ 0: adds μ W ‖α‖², W the total data weight; 0 = the paper),
         solver ("newton"|"lbfgsb"), point_to_point (λ in [0, 1): the energy becomes
-        Σ ω_r [(1 − λ) ρ_plane² + λ ‖q_r − p_r‖²]; 0 = the paper),
-        identity_prior (μ_id, mm², 15), identity_prior_start (None or a larger μ_id to start
-        from, 1e4), identity_prior_decay (0.5: factor per round down to identity_prior),
-        refine_rigid (True: 6 more unknowns, a small rotation about the centroid and a
-        translation, linearised and re-solved each round; the transform is updated),
-        sample_stride (1: every template vertex carries data; n: every n-th), damping
-        ("reversal" | "growth") and overrelax (≥ 1), see EXPRESSION_DEFAULTS.
+        Σ ω_r [(1 − λ) ρ_plane² + λ ‖q_r − p_r‖²]; 0 = the paper), identity_prior (μ_id, mm²),
+        identity_prior_start (None or a larger μ_id to start from), identity_prior_decay (factor
+        per round down to identity_prior), refine_rigid (6 more unknowns, a small rotation about
+        the centroid and a translation, linearised and re-solved each round), sample_stride (1:
+        every template vertex carries data; n: every n-th), damping ("reversal" | "growth") and
+        overrelax (≥ 1).
 
     Returns
     -------
     ExpressionFit
     """
-    unknown = set(options) - set(EXPRESSION_DEFAULTS)
-    if unknown:
-        raise TypeError(f"fit_expression: unknown option(s) {', '.join(sorted(unknown))}")
-    o = {**EXPRESSION_DEFAULTS, **options}
-    if o["weights"] not in ("paper", "uniform"):
+    o = options if options is not None else ExpressionOptions()
+    if overrides:
+        try:
+            o = replace(o, **overrides)
+        except TypeError as e:
+            raise TypeError(f"fit_expression: {e}") from None
+    if o.weights not in ("paper", "uniform"):
         raise ValueError(f"weights must be 'paper' or 'uniform', got {o['weights']!r}")
-    if o["solver"] not in ("newton", "lbfgsb"):
+    if o.solver not in ("newton", "lbfgsb"):
         raise ValueError(f"solver must be 'newton' or 'lbfgsb', got {o['solver']!r}")
     t0 = time.perf_counter()
     T = np.asarray(transform, dtype=np.float64)
@@ -376,25 +355,23 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     a0, basis = _shape_basis(template, identity)
     base = a0 @ T[:, :3].T + T[:, 3]
     gram = _WeightedGram(basis)
-    if o["refine_affine"] and landmarks is None:
+    if o.refine_affine and landmarks is None:
         raise ValueError("refine_affine needs the landmarks (template ids, scan positions)")
     faces = np.ascontiguousarray(template.faces, dtype=np.int64)
     k = basis.k
     regions = np.asarray(template.regions)
     upper, chin, mouth = (regions == 0), (regions == 1), (regions == 2)
-    cos_full = np.cos(np.radians(o["phi_deg"]))
-    cos_half = np.cos(np.radians(o["phi_deg"] / 2.0))
+    cos_full = np.cos(np.radians(o.phi_deg))
+    cos_half = np.cos(np.radians(o.phi_deg / 2.0))
     cos_req = np.where(upper, cos_full, cos_half)
-    tree = tree if tree is not None else _kdtree(scan.vertices)
-    scan_n = scan.vertex_normals if scan_normals is None else np.asarray(scan_normals)
-    scan_b = scan.is_boundary if scan_boundary is None else np.asarray(scan_boundary, bool)
+    tree, scan_n, scan_b = scan.kdtree, scan.vertex_normals, scan.is_boundary
     keep = np.ones(template.n_vertices, dtype=bool)
-    if o["lip_rim_rings"] >= 0:
-        keep &= ~rim_mask(template, o["lip_rim_rings"])
+    if o.lip_rim_rings >= 0:
+        keep &= ~rim_mask(template, o.lip_rim_rings)
 
     # every sample_stride-th template vertex carries data (1 = all; the fit has K unknowns, not 3N)
     sample = np.zeros(template.n_vertices, dtype=bool)
-    sample[:: max(1, int(o["sample_stride"]))] = True
+    sample[:: max(1, int(o.sample_stride))] = True
     lo = np.where(np.arange(k) < k_expr, 0.0, -np.inf)
     hi = np.where(np.arange(k) < k_expr, 1.0, np.inf)
     alpha = np.zeros(k)
@@ -407,25 +384,25 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
     prev_step = np.inf
     prev_delta = None
     rounds = []
-    for _ in range(int(o["max_rounds"])):
+    for _ in range(int(o.max_rounds)):
         lin = T[:, :3]
         p = base + basis.offsets(alpha) @ lin.T
         pn = mesh_vertex_normals(np.ascontiguousarray(p, dtype=np.float64), faces)
         dist, idx = tree.query(p, k=1)
         idx = np.asarray(idx, dtype=np.int64)
         q, qn = scan.vertices[idx], scan_n[idx]
-        valid = (np.einsum("ij,ij->i", pn, qn) >= cos_req) & (np.asarray(dist) <= o["max_distance"]) & keep
-        if o["reject_boundary"]:
+        valid = (np.einsum("ij,ij->i", pn, qn) >= cos_req) & (np.asarray(dist) <= o.max_distance) & keep
+        if o.reject_boundary:
             valid &= ~scan_b[idx]
         f_chin = float(valid[chin].mean()) if chin.any() else 1.0
         f_mouth = float(valid[mouth].mean()) if mouth.any() else 1.0
-        if o["weights"] == "paper":
-            if stage == 1 and (f_chin >= o["chin_start"] or stage_rounds >= o["max_stage_rounds"]):
+        if o.weights == "paper":
+            if stage == 1 and (f_chin >= o.chin_start or stage_rounds >= o.max_stage_rounds):
                 stage, stage_rounds, prev_step = 2, 0, np.inf
-            elif stage == 2 and stage_rounds >= o["max_stage_rounds"]:
+            elif stage == 2 and stage_rounds >= o.max_stage_rounds:
                 rounds.append(dict(stage=stage, f_chin=f_chin, f_mouth=f_mouth, stopped="stage rounds"))
                 break
-            if stage == 2 and f_mouth >= o["mouth_stop"] and rounds:
+            if stage == 2 and f_mouth >= o.mouth_stop and rounds:
                 rounds.append(dict(stage=stage, f_chin=f_chin, f_mouth=f_mouth, stopped="mouth valid"))
                 break
             w_region = np.array([1.0, 1.0 - f_chin, (1.0 - f_mouth) if stage == 2 else 0.0])
@@ -434,19 +411,19 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         # only valid matches on the sample count
         w_vert = np.where(valid & sample, w_region[regions], 0.0)
         ctr = p.mean(axis=0)
-        lam = float(o["point_to_point"])
+        lam = float(o.point_to_point)
         h, g, const = _normal_equations(basis, gram, lin, w_vert, q - base, qn, p - ctr, lam,
-                                        bool(o["refine_rigid"]))
+                                        bool(o.refine_rigid))
         n_x = len(g)
         w_total = float(w_vert.sum())
         # optional ridge prior μ W ‖α‖² (W = total data weight, so μ is in mm² per vertex)
         # and the identity prior μ_id ‖β‖² (β ~ N(0, 1) a priori; μ_id in mm²), which relaxes
         # geometrically from identity_prior_start to identity_prior
-        mu_id = float(o["identity_prior"])
-        if o["identity_prior_start"] is not None:
-            mu_id = max(mu_id, float(o["identity_prior_start"]) * float(o["identity_prior_decay"]) ** (len(rounds) + round_offset))
-        ridge = np.where(np.arange(k) < k_expr, float(o["alpha_prior"]) * w_total, mu_id)
-        if o["refine_rigid"]:
+        mu_id = float(o.identity_prior)
+        if o.identity_prior_start is not None:
+            mu_id = max(mu_id, float(o.identity_prior_start) * float(o.identity_prior_decay) ** (len(rounds) + round_offset))
+        ridge = np.where(np.arange(k) < k_expr, float(o.alpha_prior) * w_total, mu_id)
+        if o.refine_rigid:
             ridge = np.concatenate([ridge, np.zeros(6)])
             x0 = np.concatenate([alpha, np.zeros(6)])
             lo_x, hi_x = np.concatenate([lo, np.full(6, -np.inf)]), np.concatenate([hi, np.full(6, np.inf)])
@@ -454,7 +431,7 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
             x0, lo_x, hi_x = alpha, lo, hi
         h_data = h.copy()
         h[np.diag_indices(n_x)] += ridge
-        if o["solver"] == "newton":
+        if o.solver == "newton":
             a_new = box_qp(h, g, x0, lo_x, hi_x)
         else:
             def f(a):  # the same quadratic: E(a) = aᵀHa − 2gᵀa + const
@@ -467,32 +444,32 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         # the data energy of the solution from the quadratic form (no second pass over the rows)
         energy = max(float(a_new @ h_data @ a_new - 2.0 * g @ a_new + const), 0.0)
         moved = 0.0
-        if o["refine_rigid"]:
-            rot, tr = _rodrigues(a_new[k:k + 3]), a_new[k + 3:]
+        if o.refine_rigid:
+            rot, tr = rotation_from_vector(a_new[k:k + 3]), a_new[k + 3:]
             a_new = a_new[:k]
             T = np.hstack([rot @ T[:, :3], (rot @ (T[:, 3] - ctr) + ctr + tr)[:, None]])
             base = a0 @ T[:, :3].T + T[:, 3]
-            moved = float(np.linalg.norm(p - ctr, axis=1).max() * _rot_angle(rot) + np.linalg.norm(tr))
+            moved = float(np.linalg.norm(p - ctr, axis=1).max() * rotation_angle(rot) + np.linalg.norm(tr))
         # β is in standard deviations (~10x the spread of α): scaled so that alpha_tol means alike
         delta = a_new - alpha
         step = float(np.abs(delta * np.where(np.arange(k) < k_expr, 1.0, 0.1)).max())
         reverses = prev_delta is not None and float(delta @ prev_delta) < 0.0
-        if step > 0.9 * prev_step and (o["damping"] == "growth" or reverses):
+        if step > 0.9 * prev_step and (o.damping == "growth" or reverses):
             # The valid sets (and with them the paper's region weights) flip back and forth
             # between two states: damp by taking half the step (a convex combination stays in [0, 1]).
             a_new = 0.5 * (alpha + a_new)
             step *= 0.5
-        elif o["overrelax"] > 1.0 and prev_delta is not None and not reverses:
+        elif o.overrelax > 1.0 and prev_delta is not None and not reverses:
             cos = float(delta @ prev_delta) / max(float(np.linalg.norm(delta) * np.linalg.norm(prev_delta)), 1e-300)
             if cos > 0.9:  # creeping along one direction: go further along it
-                a_new = np.clip(alpha + o["overrelax"] * delta, lo, hi)
+                a_new = np.clip(alpha + o.overrelax * delta, lo, hi)
         prev_delta = a_new - alpha
         alpha, prev_step = a_new, step
         step = max(step, moved / 10.0)  # 0.01 mm of rigid motion counts like 1e-3 of α
         stage_rounds += 1
-        if o["refine_affine"]:
+        if o.refine_affine:
             t_new = _refit_affine(a0 + basis.offsets(alpha), q, qn, w_vert, landmarks,
-                                  float(o["landmark_weight"]), a0)
+                                  float(o.landmark_weight), a0)
             if t_new is not None:
                 moved = float(np.abs((a0 @ (t_new[:, :3] - T[:, :3]).T) + (t_new[:, 3] - T[:, 3])).max())
                 T = t_new
@@ -501,8 +478,8 @@ def fit_expression(template, transform, scan: Mesh, tree=None, scan_normals=None
         rounds.append(dict(stage=stage, w_chin=float(w_region[1]), w_mouth=float(w_region[2]),
                            f_chin=f_chin, f_mouth=f_mouth, n_valid=int(valid.sum()), energy=energy,
                            step=step))
-        if step < o["alpha_tol"]:
-            if o["weights"] == "paper" and stage == 1:
+        if step < o.alpha_tol:
+            if o.weights == "paper" and stage == 1:
                 stage = 2  # stage 1 converged without 80 % valid chin matches: fit the mouth anyway
                 continue
             rounds[-1]["stopped"] = "converged"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..raster import rasterize
+from ..geometry.raster import rasterize
 from .model import vertex_normals
 
 

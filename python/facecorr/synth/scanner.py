@@ -42,7 +42,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..names import LANDMARK_IBUG68
-from ..raster import rasterize
+from ..geometry.raster import rasterize
 from .model import ICTModel, vertex_normals
 
 

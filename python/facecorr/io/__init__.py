@@ -34,8 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import MeshError, MeshFileError, UnitsError
-from .mesh import Mesh
+from ..errors import MeshError, MeshFileError, UnitsError
+from ..geometry import transforms
+from ..geometry.mesh import Mesh
 
 __all__ = [
     "MESH_FORMATS",
@@ -666,15 +667,8 @@ def _is_int(t: str) -> bool:
 
 
 def _rotation(axis_angle: np.ndarray) -> np.ndarray:
-    x, y, z, a = axis_angle
-    n = math.sqrt(x * x + y * y + z * z)
-    if n == 0 or a == 0:
-        return np.eye(3)
-    x, y, z = x / n, y / n, z / n
-    c, s, C = math.cos(a), math.sin(a), 1 - math.cos(a)
-    return np.array([[c + x * x * C, x * y * C - z * s, x * z * C + y * s],
-                     [y * x * C + z * s, c + y * y * C, y * z * C - x * s],
-                     [z * x * C - y * s, z * y * C + x * s, c + z * z * C]])
+    """VRML's rotation field (x, y, z, angle in radians) as a (3, 3) matrix."""
+    return transforms.axis_angle(axis_angle[:3], axis_angle[3])
 
 
 def _transform_matrix(node: _Node, p: _WrlParser) -> np.ndarray:

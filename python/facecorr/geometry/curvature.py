@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _core
-from .errors import MeshError
+from .. import _core
+from ..errors import MeshError
 
 __all__ = ["principal_curvatures", "umbilicity", "umbilics"]
 

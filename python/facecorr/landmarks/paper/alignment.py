@@ -14,25 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-def kabsch(source: np.ndarray, target: np.ndarray, allow_reflection: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rigid transform ``x -> R x + t`` taking source (n, 3) onto target (n, 3).
-
-    Returns (R (3, 3), t (3,)). ``allow_reflection`` permits det R = -1 (an orthogonal
-    Procrustes fit), used to align an MDS embedding, whose handedness is arbitrary.
-    """
-    s = np.asarray(source, dtype=np.float64)
-    t = np.asarray(target, dtype=np.float64)
-    if s.shape != t.shape or s.ndim != 2 or len(s) < 3:
-        raise ValueError(f"kabsch: need two (n>=3, d) arrays of equal shape, got {s.shape} and {t.shape}")
-    cs, ct = s.mean(0), t.mean(0)
-    h = (s - cs).T @ (t - ct)
-    u, _, vt = np.linalg.svd(h)
-    d = np.ones(s.shape[1])
-    if not allow_reflection and np.linalg.det(vt.T @ u.T) < 0:
-        d[-1] = -1.0
-    r = vt.T @ np.diag(d) @ u.T
-    return r, ct - r @ cs
+from ...geometry.transforms import kabsch
 
 
 @dataclass

@@ -133,9 +133,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from .names import LANDMARK_IBUG68, LANDMARK_NAMES
+from ..names import LANDMARK_IBUG68, LANDMARK_NAMES
 
-DATA_DIR = Path(__file__).resolve().parent / "data"
+DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 ICT_MODEL_PATH = DATA_DIR / "ict" / "ict_face_model.npz"
 TEMPLATE_PATH = DATA_DIR / "template.npz"
 
@@ -277,7 +277,7 @@ class Template:
 
     def mesh(self, alpha=None):
         """The template (or P(alpha)) as a :class:`facecorr.mesh.Mesh`."""
-        from .mesh import Mesh
+        from ..geometry.mesh import Mesh
 
         v = self.vertices if alpha is None else self.expression(alpha)
         return Mesh(v, self.faces, source="template")
@@ -471,7 +471,7 @@ def _nostril_interiors(vertices: np.ndarray, faces: np.ndarray, ibug68: np.ndarr
     in 30 deg steps, pitch 0 and 15 deg from below), like a stereo-pod scanner's cameras. The
     unseen vertices form one piece inside each nostril; pieces of >= 20 vertices are returned.
     """
-    from .render import view_rotation
+    from ..geometry.transforms import view_rotation
 
     x, y = vertices[:, 0], vertices[:, 1]
     alae = vertices[ibug68[[31, 35]]]
@@ -601,7 +601,7 @@ def build_template(model_path: str | Path = ICT_MODEL_PATH) -> dict[str, np.ndar
 
 def save_template(path: str | Path = TEMPLATE_PATH, model_path: str | Path = ICT_MODEL_PATH) -> dict:
     """Build the template and write it to ``path`` (compressed npz). Returns the arrays."""
-    from .fileio import atomic_path
+    from ..io.atomic import atomic_path
 
     arrays = build_template(model_path)
     with atomic_path(path) as tmp:

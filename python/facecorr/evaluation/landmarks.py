@@ -25,9 +25,8 @@ def _eval_one(job):
     """Worker: predict one scan and measure it; never raises."""
     rec, model_path, rotate_seed, options = job
     from ..io import load_mesh
-    from ..mesh import Mesh
-    from .model import load_model
-    from .predict import predict_landmarks
+    from ..geometry.mesh import Mesh
+    from ..landmarks.predict import predict_landmarks
 
     t0 = time.perf_counter()
     try:
@@ -62,7 +61,7 @@ METHODS = {"default": {}, "paper": {"start_search": "paper", "localise": "bp"}}
 
 
 def _cached_model(path):
-    from .model import load_model
+    from ..landmarks.model import load_model
 
     key = str(path)
     if key not in _MODEL_CACHE:
@@ -115,10 +114,10 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     """
     from ..threads import process_map
 
-    from ..fileio import atomic_path, write_json
-    from ..registration_eval import select_eval_records
+    from ..io.atomic import atomic_path, write_json
+    from .registration import select_eval_records
     from ..synth import load_index
-    from .model import load_model
+    from ..landmarks.model import load_model
 
     load_model(model)  # validate once, up front: a bad model is the user's error, not 350 failures
     recs = select_eval_records(load_index(db_dir))
@@ -155,9 +154,10 @@ def plot_landmarks(rows, path, cols: int = 4) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..fileio import atomic_path
+    from ..io.atomic import atomic_path
     from ..io import load_mesh
-    from ..render import draw_mesh, kabsch
+    from ..geometry.transforms import kabsch
+    from ..render import draw_mesh
     from ..template import load_template
 
     tpl = load_template()

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _core
+from .. import _core
 
 
 def rasterize(uv: np.ndarray, depth: np.ndarray, triangles: np.ndarray, width: int, height: int):

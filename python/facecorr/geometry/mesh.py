@@ -13,8 +13,8 @@ from functools import cached_property
 
 import numpy as np
 
-from . import _core
-from .errors import MeshError
+from .. import _core
+from ..errors import MeshError
 
 
 @dataclass(eq=False)

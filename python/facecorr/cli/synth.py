@@ -31,8 +31,8 @@ def add_commands(subparsers) -> None:
 
 
 def run_synth(args) -> int:
-    from .generate import generate, load_index
-    from .preview import contact_sheet
+    from ..synth.generate import generate, load_index
+    from ..synth.preview import contact_sheet
 
     opts = {k: getattr(args, k) for k in ("yaw", "pitch", "roll") if getattr(args, k) is not None}
     if args.any_rotation:

@@ -1,18 +1,21 @@
-"""The whole method on one scan: landmarks -> affine -> expression -> shape (paper §3-4).
+"""The whole method on one scan: landmarks -> alignment -> expression -> shape (paper §3-4).
 
 :func:`correspond` is the Python entry point; :class:`Result` carries the registered template
-(template vertex order, the scan's frame) and everything the CLI writes.
+(template vertex order, the scan's frame) and everything the CLI writes; every setting is a field
+of :class:`CorrespondOptions`.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .mesh import Mesh
-from .names import LANDMARK_NAMES
+from ..geometry.mesh import Mesh
+from ..landmarks.predict import PredictOptions
+from ..names import LANDMARK_NAMES
+from ..registration.register import RegisterOptions
 
 
 @dataclass
@@ -61,8 +64,8 @@ class Result:
 
     def save(self, mesh_path, json_path=None) -> None:
         """Write the registered template (scan's units) and optionally the JSON, each atomically."""
-        from .fileio import atomic_path, write_json
-        from .io import save_mesh
+        from ..io.atomic import atomic_path, write_json
+        from ..io import save_mesh
 
         with atomic_path(mesh_path) as tmp:
             save_mesh(tmp, (self.vertices / self.to_mm, self.faces))
@@ -70,11 +73,26 @@ class Result:
             write_json(json_path, self.to_json())
 
 
-#: Shape-fit landmark weight when the landmarks were predicted (see :func:`correspond`).
-PREDICTED_LANDMARK_WEIGHT = 0.0
+@dataclass(frozen=True)
+class CorrespondOptions:
+    """Settings of :func:`correspond`: the two stages' options and how the pipeline joins them.
+
+    ``predicted_landmark_weight`` replaces ``register.shape.w_landmark`` when the landmarks were
+    predicted: the shape fit's landmark term pins the template's landmarks to the given points,
+    right for landmarks a user supplies, harmful for predicted ones (2-3 mm off; BENCHMARKS.md,
+    "Where the defaults come from"). ``refit_on_implausible``: a fit the model cannot explain
+    (:meth:`RegistrationResult.implausible`) is redone once from landmarks predicted with the wider
+    start search (:meth:`PredictOptions.wider`), and the better-explained fit kept.
+    """
+
+    predict: PredictOptions = field(default_factory=PredictOptions)
+    register: RegisterOptions = field(default_factory=RegisterOptions)
+    predicted_landmark_weight: float = 0.0
+    refit_on_implausible: bool = True
 
 
-def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, template=None) -> Result:
+def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, template=None,
+               options: CorrespondOptions | None = None) -> Result:
     """Register the template onto ``mesh`` fully automatically.
 
     Parameters
@@ -84,22 +102,23 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         when given, landmark prediction is skipped.
     model : a trained landmark model (default: the packaged one).
     template : a Template (default: the packaged one).
+    options : CorrespondOptions (default ``CorrespondOptions()``).
 
     Returns
     -------
     Result
     """
-    from .registration import register
-    from .template import load_template
+    from ..landmarks import predict_landmarks
+    from ..registration import register
+    from ..template import load_template
 
+    opts = options if options is not None else CorrespondOptions()
     template = template or load_template()
     timings = {}
     flags = []
     t0 = time.perf_counter()
     if landmarks is None:
-        from .landmarks import predict_landmarks
-
-        pred = predict_landmarks(mesh, model=model)
+        pred = predict_landmarks(mesh, model=model, options=opts.predict)
         positions = {k: np.asarray(v, float) for k, v in pred.positions.items()}
         confidence = dict(pred.confidence)
         flags += list(pred.flags)
@@ -107,30 +126,24 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
     else:
         missing = [n for n in LANDMARK_NAMES if n not in landmarks]
         if missing:
-            from .errors import LandmarkError
+            from ..errors import LandmarkError
 
             raise LandmarkError(f"landmarks given without {', '.join(missing)}")
         positions = {n: np.asarray(landmarks[n], float) for n in LANDMARK_NAMES}
         confidence = {n: 1.0 for n in LANDMARK_NAMES}
     timings["landmarks"] = time.perf_counter() - t0
-    # The shape fit's landmark term pins the template's landmarks to the given points: right for
-    # landmarks a user supplies, harmful for predicted ones (2-3 mm off). Measured on the first 21
-    # bu3dfe test scans with predicted landmarks: weight 10 -> 0 takes eyes 1.47/1.55 -> 1.26/1.18
-    # mm and nose 1.40 -> 1.18 mm, brows/mouth/dense unchanged (BENCHMARKS.md, "Registration").
-    options = {} if landmarks is not None else {"shape_landmark_weight": PREDICTED_LANDMARK_WEIGHT}
-    reg = register(mesh, positions, template=template, **options)
+    reg_opts = opts.register
+    if landmarks is None:
+        reg_opts = replace(reg_opts, shape=replace(reg_opts.shape, w_landmark=opts.predicted_landmark_weight))
+    reg = register(mesh, positions, template=template, options=reg_opts)
     doubts = reg.implausible()
-    if doubts and landmarks is None and "retried_wider_search" not in flags:
+    if doubts and landmarks is None and opts.refit_on_implausible and "retried_wider_search" not in flags:
         # Landmarks in a wrong pose show as a fit the model cannot explain: predict again with
-        # the wider start search and keep the better-explained fit (bu3dfe test split: the one
-        # scan of 350 with eye corners 30-50 mm off; the retry puts all 8 within 1-7 mm).
-        from .landmarks import predict_landmarks
-        from .landmarks.predict import RETRY_OVERRIDES
-
+        # the wider start search and keep the better-explained fit.
         t1 = time.perf_counter()
-        pred2 = predict_landmarks(mesh, model=model, **RETRY_OVERRIDES)
+        pred2 = predict_landmarks(mesh, model=model, options=opts.predict.wider())
         pos2 = {k: np.asarray(v, float) for k, v in pred2.positions.items()}
-        reg2 = register(mesh, pos2, template=template, **options)
+        reg2 = register(mesh, pos2, template=template, options=reg_opts)
         timings["refit"] = time.perf_counter() - t1
         if reg2.details.get("fit_rms_mm", np.inf) < reg.details.get("fit_rms_mm", np.inf):
             reg, positions, confidence = reg2, pos2, dict(pred2.confidence)
@@ -153,45 +166,3 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         to_mm=mesh.to_mm,
         units=mesh.units,
     )
-
-
-def plot_registration(mesh: Mesh, result: Result, path, template=None, title=None) -> None:
-    """PNG of the scan beside the registered template coloured by point-to-plane distance (mm).
-
-    Both are drawn in the template's frame (a rigid fit of the result onto the template's rest
-    pose), front view, like the paper's Fig. 11.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .fileio import atomic_path
-    from .render import draw_mesh, kabsch
-    from .spatial import KDTree
-    from .template import load_template
-
-    template = template or load_template()
-    r, t = kabsch(result.vertices, np.asarray(template.vertices, float))
-    scan_v = mesh.vertices @ r.T + t
-    reg_v = result.vertices @ r.T + t
-    # point-to-plane distance from each registered vertex to its nearest scan vertex's tangent plane
-    dist, idx = KDTree(mesh.vertices).query(result.vertices, k=1)
-    n = mesh.vertex_normals[idx]
-    p2p = np.abs(np.einsum("ij,ij->i", result.vertices - mesh.vertices[idx], n))
-    centre = reg_v.mean(axis=0)
-    keep = np.linalg.norm(scan_v - centre, axis=1) < 1.3 * np.linalg.norm(reg_v - centre, axis=1).max()
-    fkeep = keep[mesh.faces].all(axis=1)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 5.5))
-    lm = np.array([result.landmarks[k] for k in LANDMARK_NAMES]) @ r.T + t
-    draw_mesh(axes[0], scan_v, mesh.faces[fkeep], points=lm)
-    axes[0].set_title("scan (red: the landmarks used)")
-    sm = draw_mesh(axes[1], reg_v, result.faces, values=p2p, cmap="turbo", vmin=0.0, vmax=1.0)
-    axes[1].set_title(f"registered template, MHD {result.mhd:.2f} mm")
-    fig.colorbar(sm, ax=axes[1], fraction=0.04, label="point-to-plane distance to scan [mm] (clamped at 1)")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)

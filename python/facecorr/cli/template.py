@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FacecorrError
-from .fileio import atomic_path
-from .names import LANDMARK_NAMES
-from .template import REGION_NAMES, Template, load_template, visible_points  # noqa: F401 (re-export)
+from ..errors import FacecorrError
+from ..io.atomic import atomic_path
+from ..names import LANDMARK_NAMES
+from ..template import REGION_NAMES, Template, load_template, visible_points  # noqa: F401 (re-export)
 
 #: Region colours for drawings (upper, chin, mouth).
 REGION_COLORS = np.array([[0.78, 0.80, 0.86], [0.95, 0.62, 0.25], [0.85, 0.25, 0.30]])
@@ -69,7 +69,8 @@ def draw_template_png(out_path: str | Path, t: Template | None = None, dpi: int 
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
-    from .render import draw_mesh, view_rotation
+    from ..geometry.transforms import view_rotation
+    from ..render import draw_mesh
 
     t = t or load_template()
     # mixed triangles get the mean of their corners' colours: a soft edge instead of a saw-tooth

@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-from .alignment import kabsch
+from ...geometry.transforms import kabsch
 
 
 def farthest_point_sample(points: np.ndarray, k: int, start: int = 0) -> np.ndarray:

@@ -26,8 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FacecorrError, MeshFileError
-from .names import IBUG68_REGIONS, LANDMARK_NAMES
+from ..geometry.spatial import mhd
+
+__all__ = ["region_errors", "summarize_regions", "landmark_errors", "summarize_landmarks", "format_region_table",
+           "dense_error", "mhd", "load_ground_truth"]
+
+from ..errors import FacecorrError, MeshFileError
+from ..names import IBUG68_REGIONS, LANDMARK_NAMES
 
 #: Detection-rate thresholds of the paper's tables (mm).
 THRESHOLDS_MM = (10.0, 20.0, 30.0)
@@ -35,7 +40,7 @@ THRESHOLDS_MM = (10.0, 20.0, 30.0)
 
 def _template(template):
     if template is None:
-        from .template import load_template
+        from ..template import load_template
 
         return load_template()
     return template
@@ -199,35 +204,6 @@ def dense_error(registered, dense, template=None, return_mask: bool = False):
     p = np.einsum("sk,skd->sd", bary[mask], corners)
     err = np.linalg.norm(p - clean[mask], axis=1)
     return (err, mask) if return_mask else err
-
-
-def _nearest_distances(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    from .spatial import KDTree  # the Rust KD-tree (facecorr's thread pool, GIL released)
-
-    d, _ = KDTree(targets).query(points, k=1)
-    return np.asarray(d, dtype=np.float64)
-
-
-def mhd(p, f_vertices) -> float:
-    """Modified Hausdorff distance MHD(P, F) = (1/N_P) sum_i min_j |p_i - f_j| (the paper's MHD).
-
-    Parameters
-    ----------
-    p : (N_P, 3) points (e.g. registered template vertices), mm.
-    f_vertices : (N_F, 3) the scan's vertices, mm.
-
-    Returns
-    -------
-    float, mm (one-directional: from P to F, as the paper defines it).
-    """
-    p = np.asarray(p, dtype=np.float64)
-    f = np.asarray(f_vertices, dtype=np.float64)
-    for name, a in (("P", p), ("F", f)):
-        if a.ndim != 2 or a.shape[1] != 3 or len(a) == 0:
-            raise ValueError(f"mhd: {name} must have shape (n >= 1, 3), got {a.shape}")
-        if not np.isfinite(a).all():
-            raise ValueError(f"mhd: {name} has NaN or infinite coordinates")
-    return float(_nearest_distances(p, f).mean())
 
 
 def load_ground_truth(json_path, load_dense: bool = True) -> dict:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _core
+from .. import _core
 from .geodesic import _as_faces, _as_indices, _as_radii
 from .spatial import _as_points
 

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from . import _core
+from .. import _core
 from .spatial import _as_points
 
 __all__ = ["GeodesicSolver", "distances"]

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ..errors import RegistrationError
+from ..geometry.transforms import apply_transform, as_matrix, kabsch
 
 
 def _check(src, dst):
@@ -35,12 +36,6 @@ def _check(src, dst):
     if not (np.isfinite(src).all() and np.isfinite(dst).all()):
         raise ValueError("landmarks contain NaN or infinite values")
     return src, dst
-
-
-def apply_transform(t, points) -> np.ndarray:
-    """Apply a 3x4 transform to (..., 3) points."""
-    t = np.asarray(t, dtype=np.float64)
-    return np.asarray(points, dtype=np.float64) @ t[:, :3].T + t[:, 3]
 
 
 def landmark_energy(t, src, dst) -> float:
@@ -98,22 +93,11 @@ def similarity_umeyama(src, dst) -> np.ndarray:
     Raises RegistrationError if the landmarks are degenerate (all collinear or coincident).
     """
     src, dst = _check(src, dst)
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - mu_s, dst - mu_d
-    var_s = float(np.sum(a * a)) / len(src)
-    if var_s <= 1e-12:
-        raise RegistrationError("template landmarks are degenerate (coincident)")
-    cov = b.T @ a / len(src)
-    u, d, vt = np.linalg.svd(cov)
-    if d[1] <= 1e-9 * max(d[0], 1e-300):
-        raise RegistrationError("landmarks are collinear: the alignment is undetermined")
-    s = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        s[2, 2] = -1.0
-    r = u @ s @ vt
-    c = float(np.trace(np.diag(d) @ s)) / var_s
-    t = mu_d - c * r @ mu_s
-    return np.hstack([c * r, t[:, None]])
+    try:
+        r, scale, t = kabsch(src, dst, with_scale=True)
+    except ValueError as e:
+        raise RegistrationError(f"the landmarks are degenerate ({e}): the alignment is undetermined") from None
+    return as_matrix(r, t, scale)
 
 
 ALIGN_MODES = ("similarity", "affine", "similarity+affine")

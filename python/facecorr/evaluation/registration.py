@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .names import LANDMARK_NAMES
+from ..names import LANDMARK_NAMES
 
 
 def select_eval_records(records, split="test", level=4):
@@ -24,10 +24,10 @@ def select_eval_records(records, split="test", level=4):
 def _eval_one(job):
     """Worker: register one scan and measure it against its ground truth; never raises."""
     rec, use_gt_landmarks = job
-    from . import evaluate
-    from .io import load_mesh
-    from .pipeline import correspond
-    from .template import load_template
+    from . import metrics as evaluate
+    from ..io import load_mesh
+    from ..pipeline import correspond
+    from ..template import load_template
 
     t0 = time.perf_counter()
     try:
@@ -57,9 +57,9 @@ def write_reports(rows, out_dir: Path) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .fileio import atomic_path, write_json
+    from ..io.atomic import atomic_path, write_json
 
-    from .evaluate import format_region_table, summarize_regions
+    from .metrics import format_region_table, summarize_regions
 
     ok = [r for r in rows if r["ok"]]
     table = summarize_regions([{k: np.asarray(v, float) for k, v in r["regions"].items()} for r in ok])
@@ -99,9 +99,9 @@ def write_reports(rows, out_dir: Path) -> str:
 
 def evaluate_registration(db_dir, out_dir, *, use_gt_landmarks=False, workers=2, limit=None, split="test"):
     """Run and report the registration evaluation; returns the per-scan rows."""
-    from .errors import FacecorrError
-    from .synth import load_index
-    from .threads import process_map
+    from ..errors import FacecorrError
+    from ..synth import load_index
+    from ..threads import process_map
 
     records = select_eval_records(load_index(db_dir), split=split)
     if limit:

@@ -12,41 +12,24 @@ import numpy as np
 from .mds import canonical_form
 
 
-def voxel_subsample(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.ndarray:
-    """Subset of ``ids`` with at most one vertex per cube of side ``spacing`` (mm): the vertex
-    nearest to its cell's centre. O(n); keeps the candidate sets evenly spread whatever the scan's
-    resolution."""
-    ids = np.asarray(ids, dtype=np.int64)
-    if len(ids) == 0 or spacing <= 0:
-        return ids
-    p = points[ids]
-    cell = np.floor(p / spacing)
-    off = np.linalg.norm(p - (cell + 0.5) * spacing, axis=1)
-    order = np.lexsort((off, cell[:, 2], cell[:, 1], cell[:, 0]))
-    c = cell[order]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = np.any(c[1:] != c[:-1], axis=1)
-    return np.sort(ids[order[first]])
-
-
 class ScanFeatures:
     """Geodesics, FP descriptors and canonical forms on one mesh (mm).
 
     Parameters
     ----------
-    vertices : (N, 3) mm; faces : (M, 3).
+    mesh : facecorr.Mesh (mm); its cached KD-tree and normals are shared, not rebuilt.
     radii : (S,) FP radii, mm.
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, radii: np.ndarray):
-        from ..geodesic import GeodesicSolver
-        from ..spatial import KDTree
+    def __init__(self, mesh, radii: np.ndarray):
+        from ...geometry.geodesic import GeodesicSolver
 
-        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
-        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
+        self.vertices = mesh.vertices
+        self.faces = mesh.faces
+        self.tree = mesh.kdtree
+        self.normals = mesh.vertex_normals
         self.radii = np.asarray(radii, dtype=np.float64)
         self.solver = GeodesicSolver(self.vertices, self.faces)
-        self.tree = KDTree(self.vertices)
         self._fp = {}
         self._cf = {}
 
@@ -61,15 +44,6 @@ class ScanFeatures:
         if len(ids) == 0:
             return np.zeros((0, len(self.radii)))
         return np.array([self._fp[i] for i in ids.tolist()])
-
-    @property
-    def normals(self) -> np.ndarray:
-        """(N, 3) unit area-weighted vertex normals (computed once)."""
-        if not hasattr(self, "_vn"):
-            from ..mesh import Mesh
-
-            self._vn = Mesh(self.vertices, self.faces).vertex_normals
-        return self._vn
 
     def tip_normal(self, vertex: int, radius: float = 8.0) -> np.ndarray:
         """Unit area-weighted mean normal of the faces within ``radius`` mm of a vertex."""

@@ -1,7 +1,9 @@
 """The ``facecorr`` command line.
 
-Each concern contributes its sub-commands through an ``add_commands(subparsers)`` function in its
-own ``commands`` module; heavy imports happen inside the handlers so ``facecorr --help`` is quick.
+The top floor: every sub-command, one module per group (:mod:`.register`: register, batch, demo;
+:mod:`.landmarks`; :mod:`.train`; :mod:`.evaluate`: the ``eval`` group; :mod:`.template`;
+:mod:`.synth`), each with an ``add_commands(subparsers)``. Nothing in the package imports the CLI.
+Heavy imports happen inside the handlers so ``facecorr --help`` is quick.
 A user's mistake (:class:`facecorr.errors.FacecorrError`) prints one line and exits 2; anything
 else is our fault: one line naming it, exit 1 (``FACECORR_DEBUG=1`` shows the traceback).
 """
@@ -13,19 +15,14 @@ import importlib
 import os
 import sys
 
-from .errors import FacecorrError
+from ..errors import FacecorrError
 
 #: Modules contributing sub-commands, in help order.
-COMMAND_MODULES = (
-    "facecorr.commands",
-    "facecorr.landmarks.commands",
-    "facecorr.template_commands",
-    "facecorr.synth.commands",
-)
+COMMAND_MODULES = ("register", "landmarks", "train", "evaluate", "template", "synth")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
+    from .. import __version__
 
     parser = argparse.ArgumentParser(
         prog="facecorr",
@@ -34,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"facecorr {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
-        importlib.import_module(name).add_commands(sub)
+        importlib.import_module(f"{__name__}.{name}").add_commands(sub)
     return parser
 
 

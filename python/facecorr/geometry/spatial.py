@@ -10,9 +10,9 @@ import math
 
 import numpy as np
 
-from . import _core
+from .. import _core
 
-__all__ = ["KDTree"]
+__all__ = ["KDTree", "mhd", "voxel_subsample"]
 
 
 def _as_points(a, what: str) -> np.ndarray:
@@ -110,3 +110,47 @@ class KDTree:
 
     def __repr__(self) -> str:
         return f"KDTree(n={self.n})"
+
+
+def _nearest_distances(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    d, _ = KDTree(targets).query(points, k=1)
+    return np.asarray(d, dtype=np.float64)
+
+
+def mhd(p, f_vertices) -> float:
+    """Modified Hausdorff distance MHD(P, F) = (1/N_P) sum_i min_j |p_i - f_j| (the paper's MHD).
+
+    Parameters
+    ----------
+    p : (N_P, 3) points (e.g. registered template vertices), mm.
+    f_vertices : (N_F, 3) the scan's vertices, mm.
+
+    Returns
+    -------
+    float, mm (one-directional: from P to F, as the paper defines it).
+    """
+    p = np.asarray(p, dtype=np.float64)
+    f = np.asarray(f_vertices, dtype=np.float64)
+    for name, a in (("P", p), ("F", f)):
+        if a.ndim != 2 or a.shape[1] != 3 or len(a) == 0:
+            raise ValueError(f"mhd: {name} must have shape (n >= 1, 3), got {a.shape}")
+        if not np.isfinite(a).all():
+            raise ValueError(f"mhd: {name} has NaN or infinite coordinates")
+    return float(_nearest_distances(p, f).mean())
+
+
+def voxel_subsample(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.ndarray:
+    """Subset of ``ids`` with at most one vertex per cube of side ``spacing`` (mm): the vertex
+    nearest to its cell's centre. O(n); keeps the candidate sets evenly spread whatever the scan's
+    resolution."""
+    ids = np.asarray(ids, dtype=np.int64)
+    if len(ids) == 0 or spacing <= 0:
+        return ids
+    p = points[ids]
+    cell = np.floor(p / spacing)
+    off = np.linalg.norm(p - (cell + 0.5) * spacing, axis=1)
+    order = np.lexsort((off, cell[:, 2], cell[:, 1], cell[:, 0]))
+    c = cell[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = np.any(c[1:] != c[:-1], axis=1)
+    return np.sort(ids[order[first]])

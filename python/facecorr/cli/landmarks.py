@@ -1,0 +1,37 @@
+"""CLI: ``facecorr landmarks SCAN --json OUT.json``."""
+
+from __future__ import annotations
+
+
+def add_commands(subparsers) -> None:
+    p = subparsers.add_parser("landmarks", help="predict the 8 landmarks of a scan",
+                              description="Predict the 8 landmarks of a face scan (any pose, cropped or raw).")
+    p.add_argument("scan", help="mesh file (PLY, OBJ, OFF, STL, WRL)")
+    p.add_argument("--json", required=True, help="output JSON: units, landmarks (scan frame and units), confidence")
+    p.add_argument("--model", help="landmark model .npz (default: the packaged one)")
+    p.add_argument("--units", default="auto", choices=["auto", "mm", "cm", "m"])
+    p.set_defaults(func=cmd_landmarks)
+
+
+def landmarks_json(result, mesh) -> dict:
+    """The DESIGN.md contract: positions in the scan's frame and units, plus confidence."""
+    return {
+        "units": mesh.units,
+        "landmarks": {k: mesh.to_source_units(v).tolist() for k, v in result.positions.items()},
+        "confidence": {k: round(float(v), 4) for k, v in result.confidence.items()},
+        "flags": list(result.flags),
+        "timings_s": {k: round(float(v), 4) for k, v in result.timings_s.items()},
+    }
+
+
+def cmd_landmarks(args) -> int:
+    from ..io.atomic import write_json
+    from ..io import load_mesh
+    from ..landmarks.predict import predict_landmarks
+
+    mesh = load_mesh(args.scan, units=args.units)
+    result = predict_landmarks(mesh, model=args.model)
+    write_json(args.json, landmarks_json(result, mesh))
+    for f in result.flags:
+        print(f"warning: {f}")
+    return 0

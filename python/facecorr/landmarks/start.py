@@ -1,0 +1,83 @@
+"""The default start: a rigid pose of the template from the most protruding points.
+
+The ``n_tip_candidates`` most protruding points (:mod:`.protrusion`) each seed a sweep of rigid
+starts about their plane normal; a trimmed point-to-plane ICP of the template's upper face
+(:mod:`.pose`) refines the best, and the whole template's residual picks among the best poses
+(a face against its upside-down image).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import LandmarkError
+from ..geometry.spatial import voxel_subsample
+from ..names import NOSE_TIP
+from .pose import fit_poses, normal_sweep_starts, trimmed_icp
+from .protrusion import nose_tip_candidates
+
+
+_PATCH_CACHE: dict = {}
+
+
+def packaged_template(model):
+    """The packaged template; LandmarkError if the model's Pa is not its landmarks."""
+    from ..template import load_template
+
+    tpl = load_template()
+    lm = tpl.vertices[tpl.landmark_ids]
+    if lm.shape != model.graph_points.shape or np.abs(lm - model.graph_points).max() > 1e-3:
+        raise LandmarkError("the model's landmark graph is not the packaged template's: "
+                            "use localise='bp' with this model")
+    return tpl
+
+
+def _template_surface_points(model, spacing: float = 4.0) -> np.ndarray:
+    """(P, 3) the packaged template's vertices voxel-subsampled at ``spacing`` mm (~1,900)."""
+    key = (model.graph_points.tobytes(), "surface", float(spacing))
+    if key not in _PATCH_CACHE:
+        tpl = packaged_template(model)
+        _PATCH_CACHE[key] = tpl.vertices[voxel_subsample(tpl.vertices, np.arange(tpl.n_vertices), spacing)]
+    return _PATCH_CACHE[key]
+
+
+def _template_tip_plane_normal(model, radius: float) -> np.ndarray:
+    """Unit normal (3,) of the least-squares plane of the template's ICP points within
+    ``radius`` mm of Pa's nose tip: the template-side twin of the scan's protrusion plane."""
+    pts = model.icp_points
+    near = pts[np.linalg.norm(pts - model.graph_points[NOSE_TIP], axis=1) < radius]
+    if len(near) < 3:
+        return model.icp_tip_normal
+    _, vec = np.linalg.eigh(np.cov(near.T))
+    n = vec[:, 0]
+    return n if n @ model.icp_tip_normal >= 0 else -n
+
+
+def protrusion_pose(mesh, model, opts, timer, name):
+    """Default start: the ``n_tip_candidates`` most protruding points (:mod:`.protrusion`), each
+    with a sweep of ``sweep_angles`` rotations about its plane normal, then the template ICP;
+    the pose with the smallest trimmed residual wins. Returns (R, t, rms mm, debug dict)."""
+    radius = float(opts.protrusion_radius)
+    with timer("starts"):
+        tips = nose_tip_candidates(mesh.vertices, mesh.vertex_normals, k=int(opts.n_tip_candidates), radius=radius)
+        if not tips or tips[0][1] < float(opts.min_protrusion):
+            top = f"{tips[0][1]:.1f} mm" if tips else "none"
+            raise LandmarkError(f"{name}: nothing protrudes like a nose (highest protrusion {top}, "
+                                f"a nose tip stands ~10 mm out): not a face, or wrong units?")
+        tpl_n = _template_tip_plane_normal(model, radius)
+        starts = []
+        for vid, _, n in tips:
+            starts += normal_sweep_starts(model.graph_points[NOSE_TIP], tpl_n, mesh.vertices[vid], n,
+                                          int(opts.sweep_angles))
+    with timer("pose"):
+        poses = fit_poses(model.icp_points, mesh.kdtree, starts, n_best=int(opts.n_poses), normals=mesh.vertex_normals)
+        # A face and its upside-down image can fit the upper face almost equally well (forehead
+        # on the chin); the whole template (mouth and chin too) tells them apart: measured on
+        # the 2 upside-down results of the 350 test scans, the right pose had the lowest
+        # whole-template residual while its upper-face residual was 0.1-0.15 mm higher.
+        full = _template_surface_points(model)
+        scores = [trimmed_icp(full, mesh.kdtree, pr, pt, iters=10, normals=mesh.vertex_normals)[2] for pr, pt, _ in poses]
+        r, t, rms = poses[int(np.argmin(scores))]
+    return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips], pose_rms=[p[2] for p in poses],
+                           pose_full_rms=scores)
+

@@ -1,0 +1,289 @@
+"""The three registration stages on one scan (paper §4): landmark alignment (:mod:`.alignment`),
+expression (+ identity) fitting (:mod:`.expression`), shape fitting (:mod:`.shape`, Rust).
+
+:func:`register` runs them; everything is in the scan's frame and millimetres. Every setting is a
+field of :class:`RegisterOptions` (which holds the stages' :class:`ExpressionOptions` and
+:class:`ShapeFitOptions`).
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from ..errors import RegistrationError
+from ..geometry.mesh import Mesh
+from ..geometry.spatial import mhd
+from ..names import LANDMARK_NAMES
+from .alignment import ALIGN_MODES, align_landmarks, apply_transform
+from .expression import ExpressionFit, ExpressionOptions, fit_expression, rim_mask
+from .shape import ShapeFit, ShapeFitOptions, fit_shape
+
+__all__ = ["RegistrationResult", "RegisterOptions", "register"]
+
+
+@dataclass
+class RegistrationResult:
+    """Result of :func:`register`.
+
+    Attributes
+    ----------
+    vertices : (N, 3) float64, the registered template (template vertex order), mm, scan frame.
+    alpha : (K,) float64, fitted blendshape weights in [0, 1] (template.blendshape_names order).
+    landmarks_registered : dict name -> (3,) mm, the 8 landmarks read off ``vertices``.
+    mhd : float, modified Hausdorff distance registered template -> scan vertices, mm.
+    timings_s : dict stage -> seconds ("affine", "scan_geometry", "expression", "shape", "mhd",
+        "total").
+    transform : (3, 4) the landmark alignment T_A (template frame -> scan frame).
+    expression_vertices : (N, 3) P(α) after the expression fit, scan frame.
+    details : dict with the per-round / per-solve logs of the stages.
+    """
+
+    vertices: np.ndarray
+    alpha: np.ndarray
+    landmarks_registered: dict
+    mhd: float
+    timings_s: dict
+    transform: np.ndarray | None = None
+    expression_vertices: np.ndarray | None = None
+    details: dict = field(default_factory=dict)
+
+    def implausible(self) -> list:
+        """Reasons (list of str, empty if none) to doubt the fit as a whole.
+
+        The expression + identity fit measures how well the model explains the scan: the RMS of
+        its final residuals (mm) and ‖β‖², the identity weights' squared norm, which the prior
+        makes χ²-distributed with M degrees of freedom for faces like the training faces. Landmarks
+        that put the template in a wrong pose force both up (33 bu3dfe test scans: RMS 0.46-0.78
+        mm and ‖β‖² 14-46 for M = 40; the one scan whose predicted eye corners were 30-50 mm off:
+        2.5 mm and 536).
+        """
+        out = []
+        rms = self.details.get("fit_rms_mm")
+        if rms is not None and rms > IMPLAUSIBLE_RMS_MM:
+            out.append(f"fit_rms_{rms:.1f}mm")
+        beta = np.asarray(self.details.get("identity_weights", []), dtype=np.float64)
+        if len(beta):
+            from scipy.special import chdtrc  # the χ² tail
+
+            if chdtrc(len(beta), float(beta @ beta)) < IMPLAUSIBLE_IDENTITY_P:
+                out.append(f"identity_chi2_{float(beta @ beta):.0f}_of_{len(beta)}")
+        return out
+
+
+#: Thresholds of :meth:`RegistrationResult.implausible`.
+IMPLAUSIBLE_RMS_MM = 1.5
+IMPLAUSIBLE_IDENTITY_P = 1e-6
+
+
+@dataclass(frozen=True)
+class RegisterOptions:
+    """Settings of :func:`register`; the stages' own are in ``expression`` and ``shape``.
+
+    ``shape.w_landmark`` is 10 here (the shape fit's landmark term pins the template's landmarks
+    to the given points; the paper has none: 0); the pipeline sets it for predicted landmarks
+    (:class:`facecorr.pipeline.CorrespondOptions`). Measurements behind each default:
+    BENCHMARKS.md, "Where the defaults come from".
+    """
+
+    # "similarity" | "affine" (paper) | "similarity+affine" (see alignment.py)
+    alignment: str = "similarity"
+    fit_expression: bool = True
+    fit_shape: bool = True
+    # no shape-fit data term on the inner lip rim + this many rings (-1: keep)
+    shape_lip_rim_rings: int = 1
+    # Starting jawOpen weights of the expression fit; the fit whose lower face is closest to the
+    # scan (symmetric trimmed chamfer) wins (from a closed mouth alone the fit stalls on wide-open
+    # mouths).
+    jaw_starts: tuple = (0.0, 0.3)
+    # None: every start runs to the end; n: after n rounds only the best start goes on
+    jaw_select_rounds: object = 10
+    # Identity modes fitted with the expression (see identity.py): None, "packaged" (the basis
+    # shipped with facecorr), a path or an IdentityBasis; identity_modes keeps the first modes only.
+    identity: object = "packaged"
+    identity_modes: object = None
+    expression: ExpressionOptions = field(default_factory=ExpressionOptions)
+    shape: ShapeFitOptions = field(default_factory=lambda: ShapeFitOptions(w_landmark=10.0))
+
+    def __post_init__(self):
+        if self.alignment not in ALIGN_MODES:
+            raise ValueError(f"alignment must be one of {ALIGN_MODES}, got {self.alignment!r}")
+
+
+def _lower_face_chamfer(template, vertices, mesh) -> float:
+    """Symmetric trimmed (90 %) mean closest-point distance, mm, between the fitted template's
+    chin + mouth regions and the scan vertices near them (<= 15 mm): an open mouth that the fit
+    missed shows as scan lips far from the template, a wrongly opened one the other way round."""
+    from ..geometry.spatial import KDTree
+
+    lower = np.asarray(template.regions) > 0
+    d_ts, _ = mesh.kdtree.query(vertices[lower])
+    d_ts = np.sort(np.asarray(d_ts))
+    d_st, i_st = KDTree(vertices).query(mesh.vertices)
+    d_st = np.asarray(d_st)[lower[np.asarray(i_st)] & (np.asarray(d_st) <= 15.0)]
+    d_st = np.sort(d_st)
+    trim = lambda d: float(d[: max(1, int(0.9 * len(d)))].mean()) if len(d) else np.inf  # noqa: E731
+    return trim(d_ts) + trim(d_st)
+
+
+def _jaw_alpha(names, jaw) -> np.ndarray:
+    """(K,) starting expression weights: jawOpen = ``jaw`` (if the template has it), others 0."""
+    a0 = np.zeros(len(names))
+    if "jawOpen" in names:
+        a0[names.index("jawOpen")] = float(jaw)
+    return a0
+
+
+def _fit_expression_multistart(template, transform, mesh, landmarks, jaw_starts, expr_opts: ExpressionOptions,
+                               identity=None, select_rounds=None):
+    """:func:`fit_expression` from each starting jawOpen weight; the best by lower-face chamfer.
+
+    With ``select_rounds`` the starts run that many rounds only, and the best one continues alone
+    (the identity prior's annealing resumes where it was) up to ``max_rounds`` in all.
+    """
+    names = list(template.blendshape_names)
+    # Single-threaded BLAS throughout: the products here are small and only lose by threading.
+    with threadpool_limits(limits=1, user_api="blas"):
+        if "jawOpen" not in names or len(jaw_starts) <= 1:
+            return fit_expression(template, transform, mesh, landmarks=landmarks, identity=identity,
+                                  alpha0=_jaw_alpha(names, jaw_starts[0] if jaw_starts else 0.0), options=expr_opts)
+        max_rounds = int(expr_opts.max_rounds)
+        first = expr_opts if select_rounds is None else replace(expr_opts, max_rounds=min(int(select_rounds), max_rounds))
+
+        def fit_from(jaw):
+            fit = fit_expression(template, transform, mesh, landmarks=landmarks, alpha0=_jaw_alpha(names, jaw),
+                                 identity=identity, options=first)
+            return fit, _lower_face_chamfer(template, fit.vertices, mesh)
+
+        # The starts are independent: one thread each (numpy and the Rust kernels release the
+        # GIL; one register(): expression fit 0.54-0.65 s vs 0.7-1.0 s one after the other).
+        t0 = time.perf_counter()
+        with ThreadPoolExecutor(max_workers=len(jaw_starts)) as pool:
+            fits = list(pool.map(fit_from, jaw_starts))
+        best = min(fits, key=lambda fs: fs[1])[0]
+        done = len(best.rounds)
+        if done < max_rounds and not (best.rounds and best.rounds[-1].get("stopped")):
+            rest = fit_expression(template, best.transform, mesh, landmarks=landmarks, alpha0=best.alpha,
+                                  identity=identity, beta0=best.identity_weights, round_offset=done,
+                                  options=replace(expr_opts, max_rounds=max_rounds - done))
+            rest.rounds = best.rounds + rest.rounds
+            best = rest
+        best.seconds = time.perf_counter() - t0
+        return best
+
+
+def _identity_basis(spec, n_modes, n_vertices):
+    """The IdentityBasis of the ``identity`` option (None, "packaged", a path or a basis)."""
+    from .identity import IdentityBasis, load_identity_basis
+
+    if spec is None:
+        return None
+    basis = spec if isinstance(spec, IdentityBasis) else load_identity_basis(
+        None if spec == "packaged" else spec, n_vertices=n_vertices)
+    if len(basis.mean) != n_vertices:
+        raise RegistrationError(f"identity basis has {len(basis.mean)} vertices, the template {n_vertices}")
+    return basis if n_modes is None else basis.truncated(int(n_modes))
+
+
+def _landmark_array(landmarks) -> np.ndarray:
+    if not isinstance(landmarks, dict):
+        raise TypeError("landmarks must be a dict name -> (3,) position in mm")
+    missing = [n for n in LANDMARK_NAMES if n not in landmarks]
+    if missing:
+        raise RegistrationError(f"landmarks missing: {', '.join(missing)}")
+    a = np.array([np.asarray(landmarks[n], dtype=np.float64).reshape(-1) for n in LANDMARK_NAMES])
+    if a.shape != (len(LANDMARK_NAMES), 3):
+        raise RegistrationError("every landmark must be a 3-vector (mm)")
+    if not np.isfinite(a).all():
+        raise RegistrationError("landmarks contain NaN or infinite values")
+    return a
+
+
+def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOptions | None = None) -> RegistrationResult:
+    """Fit the template to a scan: landmark alignment -> expression -> shape (paper §4).
+
+    Parameters
+    ----------
+    mesh : Mesh, the scan in mm (any pose); its cached KD-tree, normals and boundary are shared by
+        every stage.
+    landmarks : dict name -> (3,) mm, the 8 landmarks of facecorr.names.LANDMARK_NAMES on the scan.
+    template : facecorr.template.Template (default: the packaged one).
+    options : RegisterOptions (default ``RegisterOptions()``).
+
+    Returns
+    -------
+    RegistrationResult (vertices in the scan's frame, mm).
+    """
+    from ..template import load_template
+
+    t_start = time.perf_counter()
+    template = template if template is not None else load_template()
+    opts = options if options is not None else RegisterOptions()
+    if not isinstance(mesh, Mesh):
+        raise TypeError("mesh must be a facecorr.Mesh")
+    if not isinstance(opts, RegisterOptions):
+        raise TypeError("options must be a facecorr.registration.RegisterOptions")
+    scan_lm = _landmark_array(landmarks)
+    ids = np.asarray(template.landmark_ids, dtype=np.int64)
+    timings = {}
+
+    t0 = time.perf_counter()
+    transform = align_landmarks(np.asarray(template.vertices)[ids], scan_lm, mode=opts.alignment)
+    timings["affine"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    mesh.kdtree, mesh.vertex_normals, mesh.is_boundary  # built once here, shared by every stage
+    timings["scan_geometry"] = time.perf_counter() - t0
+
+    k = template.n_blendshapes
+    details = {}
+    identity = _identity_basis(opts.identity, opts.identity_modes, template.n_vertices)
+    if opts.fit_expression:
+        expr = _fit_expression_multistart(template, transform, mesh, (ids, scan_lm), tuple(opts.jaw_starts),
+                                          opts.expression, identity, opts.jaw_select_rounds)
+        transform = expr.transform
+        timings["expression"] = expr.seconds
+        details["expression_rounds"] = expr.rounds
+        details["identity_weights"] = np.asarray(expr.identity_weights).tolist()
+        last = next((r for r in reversed(expr.rounds) if "energy" in r), None)
+        if last is not None and last["n_valid"] > 0:
+            details["fit_rms_mm"] = float(np.sqrt(last["energy"] / last["n_valid"]))
+    else:
+        expr = ExpressionFit(alpha=np.zeros(k), vertices=apply_transform(transform, template.vertices))
+        timings["expression"] = 0.0
+    alpha = expr.alpha
+
+    if opts.fit_shape:
+        tw = None
+        if opts.shape_lip_rim_rings >= 0:
+            tw = np.where(rim_mask(template, int(opts.shape_lip_rim_rings)), 0.0, 1.0)
+        shape = fit_shape(expr.vertices, template.faces, mesh, anchors=(ids, scan_lm), template_weight=tw,
+                          options=opts.shape)
+        timings["shape"] = shape.seconds
+        details["shape_solves"] = shape.solves
+        vertices = shape.vertices
+    else:
+        shape = ShapeFit(vertices=expr.vertices, transforms=np.zeros((0, 3, 4)))
+        timings["shape"] = 0.0
+        vertices = expr.vertices
+    if not np.isfinite(vertices).all():
+        raise RegistrationError("the shape fit diverged (non-finite vertices)")
+
+    t0 = time.perf_counter()
+    mhd_value = mhd(vertices, mesh.vertices)
+    timings["mhd"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    return RegistrationResult(
+        vertices=vertices,
+        alpha=np.asarray(alpha, dtype=np.float64),
+        landmarks_registered={n: vertices[i].copy() for n, i in zip(LANDMARK_NAMES, ids)},
+        mhd=float(mhd_value),
+        timings_s=timings,
+        transform=transform,
+        expression_vertices=expr.vertices,
+        details=details,
+    )
