@@ -22,7 +22,7 @@ COMMAND_MODULES = ("register", "landmarks", "train", "evaluate", "template", "sy
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .. import __version__
+    from .._core import __version__
 
     parser = argparse.ArgumentParser(
         prog="facecorr",
