@@ -119,7 +119,9 @@ def test_unreadable_file(tmp_path, monkeypatch):
     def denied(*a, **k):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(io, "open", denied, raising=False)  # root ignores chmod; simulate it
+    from facecorr.io import load as io_load  # the module whose open() the readability check uses
+
+    monkeypatch.setattr(io_load, "open", denied, raising=False)  # root ignores chmod; simulate it
     with pytest.raises(MeshFileError, match="cannot read: Permission denied"):
         io.load_mesh(p)
 
@@ -438,6 +440,20 @@ def test_save_errors_leave_no_file(tmp_path):
     with pytest.raises(MeshError, match="Mesh or a"):
         io.save_mesh(tmp_path / "m.ply", V)
     assert os.listdir(tmp_path) == []
+
+
+def test_write_bytes_atomic_failure_is_mesh_file_error_and_leaves_nothing(tmp_path):
+    from facecorr.io.atomic import write_bytes_atomic
+
+    (tmp_path / "d.ply").mkdir()  # the rename onto a directory fails
+    with pytest.raises(MeshFileError, match="cannot write") as e:
+        write_bytes_atomic(tmp_path / "d.ply", b"ply\n")
+    one_line(e)
+    assert os.listdir(tmp_path) == ["d.ply"] and os.listdir(tmp_path / "d.ply") == []
+    with pytest.raises(MeshFileError, match="does not exist"):
+        write_bytes_atomic(tmp_path / "no" / "x.bin", b"x")
+    write_bytes_atomic(tmp_path / "x.bin", b"\x00\x01")
+    assert (tmp_path / "x.bin").read_bytes() == b"\x00\x01"
 
 
 # ----------------------------------------------------------------------------- hypothesis

@@ -1,4 +1,8 @@
-"""Atomic file writing: a result file is either complete or absent, never partial."""
+"""Atomic file writing: a result file is either complete or absent, never partial.
+
+:func:`atomic_path` is the one mechanism (a temporary file beside the target, renamed onto it);
+:func:`write_bytes_atomic` (meshes) and :func:`write_json` are built on it.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +11,10 @@ import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
+
+from ..errors import MeshFileError
+
+__all__ = ["atomic_path", "write_bytes_atomic", "write_json"]
 
 
 @contextmanager
@@ -39,3 +47,19 @@ def write_json(path, obj) -> None:
     """Write ``obj`` as indented JSON atomically."""
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(obj, indent=2) + "\n")
+
+
+def write_bytes_atomic(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (usual umask permissions, nothing left on failure).
+
+    Unlike :func:`atomic_path` the directory is not created: a missing directory or any OS
+    failure is a one-line MeshFileError (an OSError) naming ``path``.
+    """
+    path = Path(path)
+    if not path.parent.exists():
+        raise MeshFileError(f"{path}: directory {path.parent} does not exist")
+    try:
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data)
+    except OSError as e:
+        raise MeshFileError(f"{path}: cannot write: {e.strerror or e}") from None

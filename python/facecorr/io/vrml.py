@@ -1,0 +1,427 @@
+"""VRML 2.0 (``.wrl``/``.vrml``, e.g. BU-3DFE) meshes: the parser :func:`read_wrl` and the text
+writer :func:`write_wrl_text` used by :func:`facecorr.io.save_mesh`.
+
+Every ``IndexedFaceSet`` reached through ``children`` / ``level`` / ``Shape.geometry`` is read
+(``coord Coordinate { point [...] }`` or ``USE``, ``coordIndex [... -1 ...]`` polygons,
+fan-triangulated; ``ccw FALSE`` flips them); several shapes are merged; ``Transform`` nodes are
+applied; texture, normal and colour nodes, PROTOs and ROUTEs are ignored. Long plain number lists
+(> 1000 characters) are converted in one numpy call. Coordinates are returned as in the file (no
+unit conversion; :func:`facecorr.io.load_mesh` does that). Syntax errors are one-line
+:class:`~facecorr.errors.MeshFileError` naming the line.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import MeshFileError
+from ..geometry import transforms
+
+__all__ = ["read_wrl", "write_wrl_text"]
+
+_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|#[^\n]*|[{}\[\]]|[^\s{}\[\],"#]+|,')
+_SCALAR_WORDS = {"TRUE", "FALSE", "NULL"}
+_NONFINITE = {"nan", "inf", "infinity"}  # not VRML, but printf writes them; reported as NaN/inf
+# A bracketed list without nodes, strings or comments (the big point / coordIndex arrays).
+_RAW_BLOCK = re.compile(r"\[([^\[\]{}\"#]*)\]")
+
+
+class _Node:
+    """A parsed VRML node: its type name and ``fields`` (name -> node, list or scalar list)."""
+
+    __slots__ = ("type", "fields")
+
+    def __init__(self, type_: str):
+        self.type = type_
+        self.fields: dict = {}
+
+
+class _WrlParser:
+    """Generic VRML97 node parser (no schema): node = [DEF n] Type { (field value)* } | USE n.
+
+    A field value is a node, a bracketed list of nodes or scalars, or a run of scalar tokens
+    (numbers, strings, TRUE/FALSE/NULL). PROTO/EXTERNPROTO definitions and ROUTEs are skipped.
+    """
+
+    def __init__(self, text: str, name: str):
+        self.text = text
+        self.name = name
+        toks, pos = [], []
+        self.raw: list[tuple[int, int]] = []  # (start, end) of long plain bracketed number lists
+
+        def tokenize(a: int, b: int) -> None:
+            for m in _TOKEN.finditer(text, a, b):
+                t = m.group()
+                if t[0] == "#" or t == ",":
+                    continue
+                toks.append(t)
+                pos.append(m.start())
+
+        done = 0
+        for m in _RAW_BLOCK.finditer(text):
+            a, b = m.span(1)
+            line_start = text.rfind("\n", 0, m.start()) + 1
+            if b - a < 1000 or "#" in text[line_start:m.start()]:
+                continue  # short, or possibly inside a comment: the token path handles it
+            tokenize(done, m.start())
+            toks += ["[", f"\x00{len(self.raw)}", "]"]
+            pos += [m.start(), a, b]
+            self.raw.append((a, b))
+            done = m.end()
+        tokenize(done, len(text))
+        self.toks, self.pos, self.i = toks, pos, 0
+        self.defs: dict[str, _Node] = {}
+
+    def error(self, msg: str, at: int | None = None) -> MeshFileError:
+        k = self.i if at is None else at
+        if k < len(self.pos):
+            line = self.text.count("\n", 0, self.pos[k]) + 1
+            return MeshFileError(f"{self.name}: broken VRML at line {line}: {msg}")
+        return MeshFileError(f"{self.name}: broken VRML: {msg} (unexpected end of file)")
+
+    def peek(self, k: int = 0) -> str | None:
+        j = self.i + k
+        return self.toks[j] if j < len(self.toks) else None
+
+    def next(self) -> str:
+        if self.i >= len(self.toks):
+            raise self.error("file ends too early")
+        t = self.toks[self.i]
+        self.i += 1
+        return t
+
+    def expect(self, t: str) -> None:
+        got = self.next()
+        if got != t:
+            raise self.error(f"expected {t!r}, found {got!r}", self.i - 1)
+
+    @staticmethod
+    def is_scalar(t: str | None) -> bool:
+        return t is not None and (t[0] in '"+-.0123456789' or t in _SCALAR_WORDS
+                                  or t.lower() in _NONFINITE)
+
+    def starts_node(self) -> bool:
+        t = self.peek()
+        if t in ("DEF", "USE"):
+            return True
+        return t is not None and not self.is_scalar(t) and t not in "{}[]" and self.peek(1) == "{"
+
+    def skip_block(self) -> None:
+        """Skip a balanced {...} or [...] starting at the current token."""
+        depth = 0
+        while True:
+            t = self.next()
+            if t in "{[":
+                depth += 1
+            elif t in "}]":
+                depth -= 1
+                if depth == 0:
+                    return
+
+    def parse_file(self) -> list:
+        nodes = []
+        while self.peek() is not None:
+            t = self.peek()
+            if t == "ROUTE":
+                self.i += 4  # ROUTE a.b TO c.d
+            elif t in ("PROTO", "EXTERNPROTO"):
+                self.i += 2
+                while self.peek() is not None and self.peek() in "[{":
+                    self.skip_block()
+                    if t == "EXTERNPROTO" and self.peek() is not None and self.peek()[0] == '"':
+                        self.i += 1
+            elif self.starts_node():
+                nodes.append(self.parse_node())
+            else:
+                raise self.error(f"unexpected {t!r} at the top level")
+        return nodes
+
+    def parse_node(self) -> _Node | None:
+        t = self.next()
+        if t == "USE":
+            name = self.next()
+            if name not in self.defs:
+                raise self.error(f"USE of undefined name {name!r}", self.i - 1)
+            return self.defs[name]
+        def_name = None
+        if t == "DEF":
+            def_name = self.next()
+            t = self.next()
+        node = _Node(t)
+        if def_name is not None:
+            self.defs[def_name] = node
+        self.expect("{")
+        while True:
+            f = self.peek()
+            if f is None:
+                raise self.error("missing '}'")
+            if f == "}":
+                self.i += 1
+                return node
+            if f in ("ROUTE",):
+                self.i += 4
+                continue
+            self.i += 1
+            if f in "{[]" or self.is_scalar(f):
+                raise self.error(f"expected a field name in {node.type}, found {f!r}", self.i - 1)
+            node.fields[f] = self.parse_value(f)
+
+    def parse_value(self, field: str):
+        t = self.peek()
+        if t == "[":
+            self.i += 1
+            raw = self.peek()
+            if raw is not None and raw[0] == "\x00":
+                self.i += 2  # the block and its "]"
+                a, b = self.raw[int(raw[1:])]
+                return _RawList(self.text, a, b, self)
+            if self.starts_node() or self.peek() == "]":
+                items = []
+                while self.peek() != "]":
+                    if self.peek() is None:
+                        raise self.error(f"missing ']' after {field}")
+                    if not self.starts_node():
+                        raise self.error(f"expected a node in {field}, found {self.peek()!r}")
+                    items.append(self.parse_node())
+                self.i += 1
+                return items
+            start = self.i
+            while True:
+                t = self.peek()
+                if t is None:
+                    raise self.error(f"missing ']' after {field}")
+                if t == "]":
+                    break
+                if not self.is_scalar(t):
+                    raise self.error(f"unexpected {t!r} in {field}")
+                self.i += 1
+            vals = self.toks[start:self.i]
+            self.i += 1
+            return _ScalarList(vals, start, self)
+        if self.starts_node():
+            return self.parse_node()
+        start = self.i
+        while self.is_scalar(self.peek()):
+            self.i += 1
+        if self.i == start:
+            raise self.error(f"missing value for {field}")
+        return _ScalarList(self.toks[start:self.i], start, self)
+
+
+class _RawList:
+    """A long bracketed list of plain numbers, kept as text and converted in one go."""
+
+    __slots__ = ("text", "a", "b", "parser")
+
+    def __init__(self, text, a, b, parser):
+        self.text, self.a, self.b, self.parser = text, a, b, parser
+
+    @property
+    def toks(self) -> list[str]:
+        return self.text[self.a:self.b].replace(",", " ").split()
+
+    def _convert(self, dtype, field: str, what: str) -> np.ndarray:
+        toks = self.toks
+        try:
+            return np.array(toks, dtype=dtype)
+        except (ValueError, OverflowError):
+            check = _is_float if dtype is np.float64 else _is_int
+            bad = next(t for t in toks if not check(t))
+            at = self.text.find(bad, self.a, self.b)
+            line = self.text.count("\n", 0, at) + 1
+            raise MeshFileError(f"{self.parser.name}: broken VRML at line {line}: {bad!r} is not "
+                                f"{what} in {field}") from None
+
+    def floats(self, field: str) -> np.ndarray:
+        return self._convert(np.float64, field, "a number")
+
+    def ints(self, field: str) -> np.ndarray:
+        return self._convert(np.int64, field, "an integer")
+
+
+class _ScalarList:
+    """Raw scalar tokens of a field, converted on demand."""
+
+    __slots__ = ("toks", "start", "parser")
+
+    def __init__(self, toks, start, parser):
+        self.toks, self.start, self.parser = toks, start, parser
+
+    def floats(self, field: str) -> np.ndarray:
+        try:
+            return np.array(self.toks, dtype=np.float64)
+        except ValueError:
+            bad = next(k for k, t in enumerate(self.toks) if not _is_float(t))
+            raise self.parser.error(f"{self.toks[bad]!r} is not a number in {field}",
+                                    self.start + bad) from None
+
+    def ints(self, field: str) -> np.ndarray:
+        try:
+            return np.array(self.toks, dtype=np.int64)
+        except (ValueError, OverflowError):
+            bad = next(k for k, t in enumerate(self.toks) if not _is_int(t))
+            raise self.parser.error(f"{self.toks[bad]!r} is not an integer in {field}",
+                                    self.start + bad) from None
+
+
+def _is_float(t: str) -> bool:
+    try:
+        float(t)
+        return True
+    except ValueError:
+        return False
+
+
+def _is_int(t: str) -> bool:
+    try:
+        int(t)
+        return True
+    except ValueError:
+        return False
+
+
+def _rotation(axis_angle: np.ndarray) -> np.ndarray:
+    """VRML's rotation field (x, y, z, angle in radians) as a (3, 3) matrix."""
+    return transforms.axis_angle(axis_angle[:3], axis_angle[3])
+
+
+def _transform_matrix(node: _Node, p: _WrlParser) -> np.ndarray:
+    """4x4 of a VRML Transform: T C R SR S -SR -C."""
+
+    def vec(field, default):
+        v = node.fields.get(field)
+        if v is None:
+            return np.array(default, float)
+        a = v.floats(field) if isinstance(v, _ScalarList) else None
+        if a is None or len(a) != len(default):
+            raise p.error(f"Transform.{field} needs {len(default)} numbers")
+        return a
+
+    def h(m3=None, t=None):
+        m = np.eye(4)
+        if m3 is not None:
+            m[:3, :3] = m3
+        if t is not None:
+            m[:3, 3] = t
+        return m
+
+    T = h(t=vec("translation", [0, 0, 0]))
+    C = h(t=vec("center", [0, 0, 0]))
+    R = h(_rotation(vec("rotation", [0, 0, 1, 0])))
+    SR = h(_rotation(vec("scaleOrientation", [0, 0, 1, 0])))
+    S = h(np.diag(vec("scale", [1, 1, 1])))
+    return T @ C @ R @ SR @ S @ np.linalg.inv(SR) @ np.linalg.inv(C)
+
+
+def _collect_face_sets(nodes, p: _WrlParser, M: np.ndarray, out: list, depth: int = 0) -> None:
+    """Append (IndexedFaceSet node, 4x4 world matrix M) of every face set under ``nodes`` to ``out``."""
+    if depth > 100:
+        raise p.error("nodes nested more than 100 deep (a USE cycle?)")
+    for node in nodes:
+        if not isinstance(node, _Node):
+            continue
+        if node.type == "IndexedFaceSet":
+            out.append((node, M))
+            continue
+        here = M @ _transform_matrix(node, p) if node.type == "Transform" else M
+        if node.type == "Shape":
+            g = node.fields.get("geometry")
+            if isinstance(g, _Node):
+                _collect_face_sets([g], p, here, out, depth + 1)
+        for key in ("children", "level"):  # Group/Transform/Anchor/Collision/Billboard, LOD
+            kids = node.fields.get(key)
+            if isinstance(kids, _Node):
+                kids = [kids]
+            if isinstance(kids, list):
+                _collect_face_sets(kids, p, here, out, depth + 1)
+                if key == "level":
+                    break
+
+
+def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
+    """Raw (V, F) of a VRML 2.0 file: all IndexedFaceSets merged, polygons fan-triangulated.
+
+    Polygons with fewer than 3 vertices are dropped (they count in ``n_degenerate_faces_dropped``
+    of :func:`load_mesh` because they are kept as degenerate triangles here). Indices are not
+    range-checked here (:func:`load_mesh` does). Raises MeshFileError for broken syntax or
+    another VRML version.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise MeshFileError(f"{path}: cannot read: {e.strerror or e}") from None
+    text = raw.decode("utf-8", errors="replace")
+    head = text.lstrip("\ufeff")[:64]
+    if not head.startswith("#VRML"):
+        raise MeshFileError(f"{path}: not a VRML file (no '#VRML V2.0' header)")
+    if not head.startswith("#VRML V2.0"):
+        raise MeshFileError(f"{path}: only VRML 2.0 is supported, found {head.splitlines()[0]!r}")
+    p = _WrlParser(text, str(path))
+    nodes = p.parse_file()
+    sets: list = []
+    _collect_face_sets(nodes, p, np.eye(4), sets)
+    Vs, Fs, off = [], [], 0
+    for node, M in sets:
+        coord = node.fields.get("coord")
+        if not isinstance(coord, _Node):
+            continue
+        pts = coord.fields.get("point")
+        pts = pts.floats("point") if isinstance(pts, (_ScalarList, _RawList)) else np.zeros(0)
+        if len(pts) % 3:
+            raise MeshFileError(f"{path}: Coordinate.point has {len(pts)} numbers, not a multiple of 3")
+        V = pts.reshape(-1, 3)
+        if not np.allclose(M, np.eye(4)):
+            V = V @ M[:3, :3].T + M[:3, 3]
+        ci = node.fields.get("coordIndex")
+        idx = ci.ints("coordIndex") if isinstance(ci, (_ScalarList, _RawList)) else np.zeros(0, np.int64)
+        F = _fan_triangulate(idx)
+        ccw = node.fields.get("ccw")
+        if isinstance(ccw, _ScalarList) and ccw.toks == ["FALSE"]:
+            F = F[:, ::-1]
+        Vs.append(V)
+        Fs.append(F + off)
+        off += len(V)
+    if not Vs:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    return np.concatenate(Vs), np.concatenate(Fs)
+
+
+def _fan_triangulate(idx: np.ndarray) -> np.ndarray:
+    """coordIndex with -1 separators -> (T, 3) triangles (fans); short polygons -> degenerate."""
+    idx = np.asarray(idx, np.int64)
+    if len(idx) == 0:
+        return np.zeros((0, 3), np.int64)
+    if idx[-1] != -1:
+        idx = np.append(idx, -1)
+    ends = np.flatnonzero(idx == -1)
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    lengths = ends - starts
+    # Fast path: all triangles.
+    if np.all(lengths == 3):
+        return idx[np.stack([starts, starts + 1, starts + 2], axis=1)]
+    tris = []
+    for s, n in zip(starts, lengths):
+        if n == 0:
+            continue
+        if n < 3:  # keep as a degenerate triangle so that it is counted and dropped
+            poly = idx[s:s + n]
+            tris.append([poly[0], poly[-1], poly[-1]])
+            continue
+        for k in range(1, n - 1):
+            tris.append([idx[s], idx[s + k], idx[s + k + 1]])
+    return np.array(tris, np.int64).reshape(-1, 3)
+
+
+def write_wrl_text(V: np.ndarray, F: np.ndarray) -> str:
+    """VRML 2.0 text of one Shape with an IndexedFaceSet (coordinates written exactly, %.17g)."""
+    V = np.asarray(V, np.float64)
+    F = np.asarray(F, np.int64)
+    pts = ",\n".join(f"{x:.17g} {y:.17g} {z:.17g}" for x, y, z in V.tolist())
+    idx = ",\n".join(f"{a}, {b}, {c}, -1" for a, b, c in F.tolist())
+    return ("#VRML V2.0 utf8\n# written by facecorr\n"
+            "Shape {\n geometry IndexedFaceSet {\n  coord Coordinate {\n   point [\n"
+            f"{pts}\n   ]\n  }}\n  coordIndex [\n{idx}\n  ]\n }}\n}}\n")
