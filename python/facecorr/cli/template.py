@@ -1,6 +1,6 @@
 """CLI: ``facecorr template --json [OUT]`` and ``facecorr template --png OUT.png``.
 
-``--json`` prints (or writes) the template contract of DESIGN.md::
+``--json`` prints (or writes) the template contract (README, "Command line")::
 
     {"n_vertices": N, "n_faces": M, "units": "mm",
      "frame": "+y up, +z out of the face, subject's right at -x",
@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import FacecorrError
 from ..io.atomic import atomic_path
 from ..names import LANDMARK_NAMES
-from ..template import REGION_NAMES, Template, load_template, visible_points  # noqa: F401 (re-export)
+from ..template import REGION_NAMES, Template, load_template, visible_points
 
 #: Region colours for drawings (upper, chin, mouth).
 REGION_COLORS = np.array([[0.78, 0.80, 0.86], [0.95, 0.62, 0.25], [0.85, 0.25, 0.30]])
@@ -139,20 +139,3 @@ def add_commands(subparsers) -> None:
     p.add_argument("--png", metavar="OUT.png", help="draw regions, landmarks, graph and blendshapes")
     p.set_defaults(func=cmd_template)
 
-
-def main(argv=None) -> int:
-    """Stand-alone entry (``python -m facecorr.template_commands template ...``) for testing."""
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="facecorr")
-    add_commands(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except FacecorrError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
