@@ -4,7 +4,8 @@
 //! (facecorr's pool; `FACECORR_THREADS` overrides).
 
 use _core::curvature::{principal_curvatures, umbilics, CurvatureOptions, UmbilicOptions};
-use _core::mesh::{components, vertex_areas, vertex_normals, Face, Vec3};
+use _core::mesh::{components, vertex_areas, vertex_normals, Face};
+use _core::vec3::Vec3;
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 

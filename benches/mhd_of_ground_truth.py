@@ -14,7 +14,7 @@ import json
 import numpy as np
 
 from facecorr.io import load_mesh
-from facecorr.evaluation.registration import select_eval_records
+from facecorr.evaluation.runner import select_eval_records
 from facecorr.geometry.spatial import KDTree
 from facecorr.synth import load_index
 from facecorr.synth.generate import model_vertices

@@ -124,9 +124,15 @@ def test_large_mesh_is_consistent():
     check_against_reference(V, F)
 
 
-def test_kdtree_is_cached_and_correct():
+def test_kdtree_is_built_once_and_correct(monkeypatch):
+    import facecorr.geometry.spatial as spatial
+
     V, F = R.sphere(10.0, 2)
     m = Mesh(V, F)
-    assert m.kdtree is m.kdtree
+    built = []
+    real = spatial.KDTree
+    monkeypatch.setattr(spatial, "KDTree", lambda pts: built.append(len(pts)) or real(pts))
+    m.kdtree, m.kdtree
+    assert built == [len(V)]  # one tree for every stage that asks
     d, i = m.kdtree.query(V[[5, 7]] + 1e-6)
     np.testing.assert_array_equal(i, [5, 7])

@@ -1,4 +1,4 @@
-"""Names and index conventions shared by every stage (see DESIGN.md)."""
+"""Names and index conventions shared by every stage (README, "Architecture")."""
 
 #: The 8 landmarks of the method, in this order everywhere ("right" = the subject's right, -x).
 LANDMARK_NAMES = (

@@ -7,6 +7,9 @@ judge a face, a fit or an error map by eye.
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 
 from .geometry.transforms import kabsch
@@ -102,6 +105,72 @@ def plot_registration(mesh, result, path, template, title=None) -> None:
     fig.colorbar(sm, ax=axes[1], fraction=0.04, label="point-to-plane distance to scan [mm] (clamped at 1)")
     if title:
         fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+
+
+def plot_landmarks(rows, path, reference, cols: int = 4) -> None:
+    """PNG of scans with their true (green) and predicted (red) landmarks, one panel per row of
+    ``evaluate_landmarks`` (needs "scan", "gt", "predicted"), each turned to a front view by a
+    rigid fit of its true landmarks onto ``reference`` (8, 3) (the template's landmarks, mm),
+    titled with its largest error (mm)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .io import load_mesh
+    from .io.atomic import atomic_path
+
+    ref = np.asarray(reference, dtype=np.float64)
+    n = len(rows)
+    nrow = (n + cols - 1) // cols
+    fig, axes = plt.subplots(nrow, cols, figsize=(3.2 * cols, 3.6 * nrow), squeeze=False)
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    for ax, row in zip(axes.ravel(), rows):
+        mesh = load_mesh(row["scan"], units="mm")
+        gt = json.loads(Path(row["gt"]).read_text())
+        truth = np.array([gt["landmarks"][k] for k in LANDMARK_NAMES], float)
+        pred = np.asarray(row["predicted"], float)
+        r, t = kabsch(truth, ref)
+        v = mesh.vertices @ r.T + t
+        keep = np.linalg.norm(v - ref.mean(axis=0), axis=1) < 95.0  # the face, not the whole head
+        draw_mesh(ax, v, mesh.faces[keep[mesh.faces].all(axis=1)])
+        tp, pp = truth @ r.T + t, pred @ r.T + t
+        ax.scatter(tp[:, 0], tp[:, 1], s=22, c="lime", edgecolors="black", linewidths=0.5, zorder=6)
+        ax.scatter(pp[:, 0], pp[:, 1], s=30, c="red", marker="x", linewidths=1.2, zorder=7)
+        name = Path(row["scan"]).stem.replace("_F3D", "")
+        ax.set_title(f"{name}: max {max(row['errors'].values()):.1f} mm", fontsize=9)
+        ax.axis("off")
+    fig.suptitle("landmarks: true (green dots) and predicted (red crosses)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+
+
+def plot_cumulative(worst, path) -> None:
+    """PNG of the paper's Fig. 10: the share of scans (%) whose every evaluation point is under an
+    error threshold (mm); ``worst`` (S,) is each scan's largest evaluation-point error, mm."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .io.atomic import atomic_path
+
+    worst = np.asarray(worst, dtype=np.float64)
+    th = np.linspace(0, max(10.0, float(np.nanmax(worst)) * 1.05), 300)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(th, [100 * (worst <= x).mean() for x in th])
+    ax.set_xlabel("error threshold [mm]")
+    ax.set_ylabel("scans with every evaluation point under it [%]")
+    ax.set_ylim(0, 101)
+    ax.grid(alpha=0.3)
+    ax.set_title(f"cumulative registration error ({len(worst)} scans)")
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110)

@@ -14,7 +14,7 @@ def add_commands(subparsers) -> None:
 
 
 def landmarks_json(result, mesh) -> dict:
-    """The DESIGN.md contract: positions in the scan's frame and units, plus confidence."""
+    """The `facecorr landmarks` JSON contract (README): positions in the scan's frame and units, plus confidence."""
     return {
         "units": mesh.units,
         "landmarks": {k: mesh.to_source_units(v).tolist() for k, v in result.positions.items()},

@@ -112,21 +112,17 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     ``method``: a key of :data:`METHODS` ("default", or "paper" for the paper's start + BP).
     ``png``: also write ``landmarks.png`` (:func:`plot_landmarks` of the first 4 and the 4 worst scans).
     """
-    from ..threads import process_map
-
     from ..io.atomic import atomic_path, write_json
-    from .registration import select_eval_records
-    from ..synth import load_index
     from ..landmarks.model import load_model
+    from ..render import plot_landmarks
+    from ..template import load_template
+    from .runner import run_on_eval_scans
 
     load_model(model)  # validate once, up front: a bad model is the user's error, not 350 failures
-    recs = select_eval_records(load_index(db_dir))
-    if limit:
-        recs = recs[:limit]
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
-    jobs = [(r, model, (1000 + k) if rotate else None, METHODS[method]) for k, r in enumerate(recs)]
-    rows = process_map(_eval_one, jobs, workers=workers, desc="eval landmarks", progress=progress)
+    rows = run_on_eval_scans(db_dir, _eval_one, lambda k, r: (r, model, (1000 + k) if rotate else None, METHODS[method]),
+                             workers=workers, limit=limit, desc="eval landmarks", progress=progress)
     table = landmark_table(rows)
     md = markdown(table, rows)
     out = Path(out_dir)
@@ -141,49 +137,6 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     ok = [r for r in rows if r["ok"]]
     if png and ok:
         worst = sorted(ok[4:], key=lambda r: -max(r["errors"].values()))[:4]
-        plot_landmarks(ok[:4] + worst, out / "landmarks.png")
+        tpl = load_template()
+        plot_landmarks(ok[:4] + worst, out / "landmarks.png", tpl.vertices[tpl.landmark_ids])
     return table, rows, md
-
-
-def plot_landmarks(rows, path, cols: int = 4) -> None:
-    """PNG of scans with their true (green) and predicted (red) landmarks, one panel per row of
-    ``evaluate_landmarks`` (needs "scan", "gt", "predicted"), each turned to a front view by a
-    rigid fit of its true landmarks onto the template's, titled with its largest error (mm)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..io.atomic import atomic_path
-    from ..io import load_mesh
-    from ..geometry.transforms import kabsch
-    from ..render import draw_mesh
-    from ..template import load_template
-
-    tpl = load_template()
-    ref = tpl.vertices[tpl.landmark_ids]
-    n = len(rows)
-    nrow = (n + cols - 1) // cols
-    fig, axes = plt.subplots(nrow, cols, figsize=(3.2 * cols, 3.6 * nrow), squeeze=False)
-    for ax in axes.ravel()[n:]:
-        ax.axis("off")
-    for ax, row in zip(axes.ravel(), rows):
-        mesh = load_mesh(row["scan"], units="mm")
-        gt = json.loads(Path(row["gt"]).read_text())
-        truth = np.array([gt["landmarks"][k] for k in LANDMARK_NAMES], float)
-        pred = np.asarray(row["predicted"], float)
-        r, t = kabsch(truth, ref)
-        v = mesh.vertices @ r.T + t
-        keep = np.linalg.norm(v - ref.mean(axis=0), axis=1) < 95.0  # the face, not the whole head
-        draw_mesh(ax, v, mesh.faces[keep[mesh.faces].all(axis=1)])
-        tp, pp = truth @ r.T + t, pred @ r.T + t
-        ax.scatter(tp[:, 0], tp[:, 1], s=22, c="lime", edgecolors="black", linewidths=0.5, zorder=6)
-        ax.scatter(pp[:, 0], pp[:, 1], s=30, c="red", marker="x", linewidths=1.2, zorder=7)
-        name = Path(row["scan"]).stem.replace("_F3D", "")
-        ax.set_title(f"{name}: max {max(row['errors'].values()):.1f} mm", fontsize=9)
-        ax.axis("off")
-    fig.suptitle("landmarks: true (green dots) and predicted (red crosses)")
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)

@@ -16,11 +16,6 @@ import numpy as np
 from ..names import LANDMARK_NAMES
 
 
-def select_eval_records(records, split="test", level=4):
-    """The paper's evaluation subset: the split's neutral scans and 6 expressions at ``level``."""
-    return [r for r in records if r["split"] == split and (r["expression"] == "NE" or r["level"] == level)]
-
-
 def _eval_one(job):
     """Worker: register one scan and measure it against its ground truth; never raises."""
     rec, use_gt_landmarks = job
@@ -52,13 +47,8 @@ def _eval_one(job):
 
 def write_reports(rows, out_dir: Path) -> str:
     """Write the Markdown/CSV tables, the per-scan JSON and the cumulative PNG; return the Markdown."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from ..io.atomic import atomic_path, write_json
-
+    from ..render import plot_cumulative
     from .metrics import format_region_table, summarize_regions
 
     ok = [r for r in rows if r["ok"]]
@@ -79,37 +69,18 @@ def write_reports(rows, out_dir: Path) -> str:
             f"{t['region']},{t['mean']:.4f},{t['std']:.4f},{t['max']:.4f},{t['T10']:.2f},{t['T20']:.2f},{t['T30']:.2f},{t['n_scans']}\n"
             for t in table))
     write_json(out_dir / "registration_per_scan.json", rows)
-    # Fig. 10: cumulative share of scans whose every evaluation point is under the threshold
-    if ok:
+    if ok:  # Fig. 10: cumulative share of scans whose every evaluation point is under the threshold
         worst = np.array([max(np.nanmax(np.asarray(v, float)) for v in r["regions"].values()) for r in ok])
-        th = np.linspace(0, max(10.0, float(np.nanmax(worst)) * 1.05), 300)
-        fig, ax = plt.subplots(figsize=(6, 4))
-        ax.plot(th, [100 * (worst <= x).mean() for x in th])
-        ax.set_xlabel("error threshold [mm]")
-        ax.set_ylabel("scans with every evaluation point under it [%]")
-        ax.set_ylim(0, 101)
-        ax.grid(alpha=0.3)
-        ax.set_title(f"cumulative registration error ({len(ok)} scans)")
-        fig.tight_layout()
-        with atomic_path(out_dir / "cumulative.png") as tmp:
-            fig.savefig(tmp, dpi=110)
-        plt.close(fig)
+        plot_cumulative(worst, out_dir / "cumulative.png")
     return md
 
 
 def evaluate_registration(db_dir, out_dir, *, use_gt_landmarks=False, workers=2, limit=None, split="test"):
     """Run and report the registration evaluation; returns the per-scan rows."""
-    from ..errors import FacecorrError
-    from ..synth import load_index
-    from ..threads import process_map
+    from .runner import run_on_eval_scans
 
-    records = select_eval_records(load_index(db_dir), split=split)
-    if limit:
-        records = records[:limit]
-    if not records:
-        raise FacecorrError(f"{db_dir}: no {split} scans at the evaluation level")
-    jobs = [(r, use_gt_landmarks) for r in records]
-    rows = process_map(_eval_one, jobs, workers=workers, desc="evaluating")
+    rows = run_on_eval_scans(db_dir, _eval_one, lambda k, r: (r, use_gt_landmarks), workers=workers, limit=limit,
+                             split=split)
     md = write_reports(rows, Path(out_dir))
     print(md)
     return rows

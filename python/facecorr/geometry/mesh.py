@@ -17,6 +17,13 @@ from .. import _core
 from ..errors import MeshError
 
 
+def vertex_normals(vertices, faces) -> np.ndarray:
+    """(N, 3) unit area-weighted vertex normals of a triangle mesh (zero for isolated vertices);
+    the Rust kernel behind :attr:`Mesh.vertex_normals`, for vertices that change (a fit's rounds)."""
+    return _core.mesh_vertex_normals(np.ascontiguousarray(vertices, dtype=np.float64),
+                                     np.ascontiguousarray(faces, dtype=np.int64))
+
+
 @dataclass(eq=False)
 class Mesh:
     """A validated triangle mesh in millimetres.
@@ -81,7 +88,7 @@ class Mesh:
     @cached_property
     def vertex_normals(self) -> np.ndarray:
         """(N, 3) unit area-weighted vertex normals (zero for isolated vertices)."""
-        return _core.mesh_vertex_normals(self.vertices, self.faces)
+        return vertex_normals(self.vertices, self.faces)
 
     @cached_property
     def vertex_areas(self) -> np.ndarray:

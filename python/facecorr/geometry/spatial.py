@@ -112,18 +112,14 @@ class KDTree:
         return f"KDTree(n={self.n})"
 
 
-def _nearest_distances(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    d, _ = KDTree(targets).query(points, k=1)
-    return np.asarray(d, dtype=np.float64)
-
-
-def mhd(p, f_vertices) -> float:
+def mhd(p, f_vertices, tree: "KDTree | None" = None) -> float:
     """Modified Hausdorff distance MHD(P, F) = (1/N_P) sum_i min_j |p_i - f_j| (the paper's MHD).
 
     Parameters
     ----------
     p : (N_P, 3) points (e.g. registered template vertices), mm.
     f_vertices : (N_F, 3) the scan's vertices, mm.
+    tree : optional KDTree over ``f_vertices`` (e.g. ``Mesh.kdtree``), built when None.
 
     Returns
     -------
@@ -136,7 +132,8 @@ def mhd(p, f_vertices) -> float:
             raise ValueError(f"mhd: {name} must have shape (n >= 1, 3), got {a.shape}")
         if not np.isfinite(a).all():
             raise ValueError(f"mhd: {name} has NaN or infinite coordinates")
-    return float(_nearest_distances(p, f).mean())
+    d, _ = (tree if tree is not None else KDTree(f)).query(p, k=1)
+    return float(np.asarray(d, dtype=np.float64).mean())
 
 
 def voxel_subsample(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.ndarray:

@@ -59,9 +59,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import minimize
 
-from ..geometry.mesh import Mesh
+from ..geometry.mesh import Mesh, vertex_normals
 from ..geometry.transforms import rotation_angle, rotation_from_vector
-from .._core import blend_normal_equations, mesh_vertex_normals
+from .._core import blend_normal_equations
 
 
 def rim_mask(template, rings: int) -> np.ndarray:
@@ -276,7 +276,7 @@ def _normal_equations(basis: _BlendBasis, gram: _WeightedGram, lin, w, da, qn, v
     return h, g, const
 
 
-def _refit_affine(p0, q, qn, w, landmarks, landmark_weight, a0):
+def _refit_affine(p0, q, qn, w, landmarks, landmark_weight):
     """Least-squares 3x4 T minimising Σ w ⟨q − T p0, n⟩² + μ Σ_l ‖T l̄ − l‖² (None if singular)."""
     ph = np.hstack([p0, np.ones((len(p0), 1))])
     a = (qn[:, :, None] * ph[:, None, :]).reshape(len(p0), 12)  # row of ⟨n, T p⟩ in vec(T)
@@ -387,7 +387,7 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
     for _ in range(int(o.max_rounds)):
         lin = T[:, :3]
         p = base + basis.offsets(alpha) @ lin.T
-        pn = mesh_vertex_normals(np.ascontiguousarray(p, dtype=np.float64), faces)
+        pn = vertex_normals(p, faces)
         dist, idx = tree.query(p, k=1)
         idx = np.asarray(idx, dtype=np.int64)
         q, qn = scan.vertices[idx], scan_n[idx]
@@ -468,8 +468,7 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
         step = max(step, moved / 10.0)  # 0.01 mm of rigid motion counts like 1e-3 of α
         stage_rounds += 1
         if o.refine_affine:
-            t_new = _refit_affine(a0 + basis.offsets(alpha), q, qn, w_vert, landmarks,
-                                  float(o.landmark_weight), a0)
+            t_new = _refit_affine(a0 + basis.offsets(alpha), q, qn, w_vert, landmarks, float(o.landmark_weight))
             if t_new is not None:
                 moved = float(np.abs((a0 @ (t_new[:, :3] - T[:, :3]).T) + (t_new[:, 3] - T[:, 3])).max())
                 T = t_new

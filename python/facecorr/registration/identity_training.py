@@ -7,14 +7,14 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .. import _core
 from ..geometry.transforms import kabsch
 from .identity import IdentityBasis
 
 
 def _edge_operator(faces: np.ndarray, n: int) -> sp.csr_matrix:
     """(E, N) sparse: +1 / -1 on the two ends of every template edge."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = _core.mesh_edges(np.ascontiguousarray(faces, dtype=np.int64), n)
     rows = np.repeat(np.arange(len(e)), 2)
     vals = np.tile([1.0, -1.0], len(e))
     return sp.csr_matrix((vals, (rows, e.ravel())), shape=(len(e), n))
@@ -130,11 +130,9 @@ def train_identity_basis(db_dir, template=None, n_modes: int = 40, neutral_only:
         recs = [r for r in recs if r["expression"] == "NE"]
     if len(recs) < 2:
         raise ValueError(f"{db_dir}: fewer than 2 training scans with dense ground truth")
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover
-        tqdm = None
-    it = tqdm(recs, desc="identity", disable=not progress) if tqdm else recs
+    from tqdm import tqdm
+
+    it = tqdm(recs, desc="identity", disable=not progress)
     shapes = []
     for r in it:
         try:

@@ -274,7 +274,7 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
         raise RegistrationError("the shape fit diverged (non-finite vertices)")
 
     t0 = time.perf_counter()
-    mhd_value = mhd(vertices, mesh.vertices)
+    mhd_value = mhd(vertices, mesh.vertices, tree=mesh.kdtree)
     timings["mhd"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     return RegistrationResult(

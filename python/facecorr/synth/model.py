@@ -50,9 +50,6 @@ class ICTModel:
     def n_vertices(self) -> int:
         return len(self.neutral)
 
-    def expression_index(self, name: str) -> int:
-        return self.expression_names.index(name)
-
 
 @lru_cache(maxsize=1)
 def load_ict() -> ICTModel:
@@ -89,14 +86,3 @@ def deform(model: ICTModel, identity_weights: np.ndarray, expression_weights: np
     """(N, 3) float64 vertices (mm, model frame) of a subject showing an expression."""
     d = _blend(identity_weights, model.identity) + _blend(expression_weights, model.expression)
     return model.neutral + d.reshape(-1, 3)
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(N, 3) area-weighted unit vertex normals (zero for unreferenced vertices)."""
-    a, b, c = (vertices[triangles[:, k]] for k in range(3))
-    fn = np.cross(b - a, c - a)
-    vn = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(vn, triangles[:, k], fn)
-    ln = np.linalg.norm(vn, axis=1, keepdims=True)
-    return np.divide(vn, ln, out=np.zeros_like(vn), where=ln > 0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.raster import rasterize
-from .model import vertex_normals
+from ..geometry.mesh import vertex_normals
 
 
 def shade_frontal(vertices, faces, pose, mm_per_px=0.6, size_mm=(230.0, 260.0)):

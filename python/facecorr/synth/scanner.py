@@ -43,7 +43,8 @@ from scipy.sparse.csgraph import connected_components
 
 from ..names import LANDMARK_IBUG68
 from ..geometry.raster import rasterize
-from .model import ICTModel, vertex_normals
+from ..geometry.mesh import vertex_normals
+from .model import ICTModel
 
 
 #: Vertical elongation of the face crop ellipsoid.

@@ -1,0 +1,30 @@
+"""The one runner behind ``facecorr eval landmarks`` and ``facecorr eval registration``: the
+paper's evaluation scans of a synthetic database, one job each, in spawned worker processes with
+a progress bar."""
+
+from __future__ import annotations
+
+
+def select_eval_records(records, split="test", level=4):
+    """The paper's evaluation subset: the split's neutral scans and 6 expressions at ``level``."""
+    return [r for r in records if r["split"] == split and (r["expression"] == "NE" or r["level"] == level)]
+
+
+def run_on_eval_scans(db_dir, worker, make_job, *, workers=2, limit=None, split="test", desc="evaluating",
+                      progress=True) -> list:
+    """``[worker(make_job(k, record)) ...]`` over the evaluation scans of ``db_dir`` (in order).
+
+    ``worker`` must be a module-level function that never raises (it returns a row with
+    ``"ok"``); ``limit`` keeps the first scans only. Raises FacecorrError if there are none.
+    """
+    from ..errors import FacecorrError
+    from ..synth import load_index
+    from ..threads import process_map
+
+    records = select_eval_records(load_index(db_dir), split=split)
+    if limit:
+        records = records[:limit]
+    if not records:
+        raise FacecorrError(f"{db_dir}: no {split} scans at the evaluation level")
+    jobs = [make_job(k, r) for k, r in enumerate(records)]
+    return process_map(worker, jobs, workers=workers, desc=desc, progress=progress)
