@@ -112,7 +112,7 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     ``method``: a key of :data:`METHODS` ("default", or "paper" for the paper's start + BP).
     ``png``: also write ``landmarks.png`` (:func:`plot_landmarks` of the first 4 and the 4 worst scans).
     """
-    from ..io.atomic import atomic_path, write_json
+    from ..io.atomic import write_json, write_text
     from ..landmarks.model import load_model
     from ..render import plot_landmarks
     from ..template import load_template
@@ -127,12 +127,10 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     md = markdown(table, rows)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out / "landmarks_table.md") as tmp:
-        tmp.write_text(md)
-    with atomic_path(out / "landmarks_table.csv") as tmp:
-        tmp.write_text("landmark,mean_mm,std_mm,max_mm,T10,T20,T30,n\n" + "".join(
-            f"{t['landmark']},{t['mean']:.3f},{t['std']:.3f},{t['max']:.3f},{t['T10']:.2f},{t['T20']:.2f},{t['T30']:.2f},{t['n']}\n"
-            for t in table))
+    write_text(out / "landmarks_table.md", md)
+    write_text(out / "landmarks_table.csv", "landmark,mean_mm,std_mm,max_mm,T10,T20,T30,n\n" + "".join(
+        f"{t['landmark']},{t['mean']:.3f},{t['std']:.3f},{t['max']:.3f},{t['T10']:.2f},{t['T20']:.2f},{t['T30']:.2f},{t['n']}\n"
+        for t in table))
     write_json(out / "landmarks_per_scan.json", rows)
     ok = [r for r in rows if r["ok"]]
     if png and ok:

@@ -47,7 +47,7 @@ def _eval_one(job):
 
 def write_reports(rows, out_dir: Path) -> str:
     """Write the Markdown/CSV tables, the per-scan JSON and the cumulative PNG; return the Markdown."""
-    from ..io.atomic import atomic_path, write_json
+    from ..io.atomic import write_json, write_text
     from ..render import plot_cumulative
     from .metrics import format_region_table, summarize_regions
 
@@ -62,12 +62,10 @@ def write_reports(rows, out_dir: Path) -> str:
               f"median seconds per scan: {np.median(secs):.2f}; scans: {len(ok)} ok, {len(rows) - len(ok)} failed."]
     md = "\n".join(lines) + "\n"
     out_dir.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out_dir / "registration_table.md") as tmp:
-        tmp.write_text(md)
-    with atomic_path(out_dir / "registration_table.csv") as tmp:
-        tmp.write_text("region,mean,std,max,T10,T20,T30,n_scans\n" + "".join(
-            f"{t['region']},{t['mean']:.4f},{t['std']:.4f},{t['max']:.4f},{t['T10']:.2f},{t['T20']:.2f},{t['T30']:.2f},{t['n_scans']}\n"
-            for t in table))
+    write_text(out_dir / "registration_table.md", md)
+    write_text(out_dir / "registration_table.csv", "region,mean,std,max,T10,T20,T30,n_scans\n" + "".join(
+        f"{t['region']},{t['mean']:.4f},{t['std']:.4f},{t['max']:.4f},{t['T10']:.2f},{t['T20']:.2f},{t['T30']:.2f},{t['n_scans']}\n"
+        for t in table))
     write_json(out_dir / "registration_per_scan.json", rows)
     if ok:  # Fig. 10: cumulative share of scans whose every evaluation point is under the threshold
         worst = np.array([max(np.nanmax(np.asarray(v, float)) for v in r["regions"].values()) for r in ok])

@@ -43,6 +43,12 @@ def atomic_path(path):
         raise
 
 
+def write_text(path, text: str) -> None:
+    """Write ``text`` atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
 def write_json(path, obj) -> None:
     """Write ``obj`` as indented JSON atomically."""
     with atomic_path(path) as tmp:

@@ -1,12 +1,13 @@
-"""Fully automatic landmark prediction (paper §3): a module per stage.
+"""Fully automatic landmark prediction (paper §3, floor 4: a stage; never imports ``registration``).
 
-mvee (decision ellipsoids), classify (FP -> PCA -> M-cluster labels), mds (canonical forms),
-bp (loopy belief propagation), alignment (landmark-graph flip), model (the trained model file),
-train / predict (the two pipelines), commands (CLI).
+:mod:`.predict` (the driver: :class:`PredictOptions`, :func:`predict_landmarks`, checks and
+flags), :mod:`.start` (the default protrusion start), :mod:`.patches` (the default patch
+localisation), :mod:`.pose` (trimmed ICP), :mod:`.protrusion`, :mod:`.gaussian`, :mod:`.model`
+(the trained model file), :mod:`.train`, and :mod:`.paper` (the paper's start and BP).
 """
 
 from .model import LandmarkModel, load_model
-from .predict import LandmarkResult, predict_landmarks
+from .predict import LandmarkResult, PredictOptions, predict_landmarks
 from .train import train
 
-__all__ = ["LandmarkModel", "LandmarkResult", "load_model", "predict_landmarks", "train"]
+__all__ = ["LandmarkModel", "LandmarkResult", "PredictOptions", "load_model", "predict_landmarks", "train"]

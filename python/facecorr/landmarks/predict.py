@@ -60,6 +60,7 @@ import numpy as np
 
 from ..errors import LandmarkError
 from ..names import LANDMARK_NAMES
+from ..options import resolve
 
 
 #: Flags that mean "the whole graph is probably misplaced" (31 of 34 such failures flagged, no
@@ -174,12 +175,7 @@ def predict_landmarks(mesh, model=None, options: PredictOptions | None = None, *
     """
     from .model import LandmarkModel, load_model
 
-    opts = options if options is not None else PredictOptions()
-    if overrides:
-        try:
-            opts = replace(opts, **overrides)
-        except TypeError as e:
-            raise TypeError(f"predict_landmarks: {e}") from None
+    opts = resolve(options, PredictOptions, overrides, "predict_landmarks")
     if not isinstance(model, LandmarkModel):
         model = load_model(model)
     first = _predict_once(mesh, model, opts)

@@ -15,6 +15,7 @@ import numpy as np
 from ..geometry.mesh import Mesh
 from ..landmarks.predict import PredictOptions
 from ..names import LANDMARK_NAMES
+from ..options import resolve
 from ..registration.register import RegisterOptions
 
 
@@ -112,7 +113,7 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
     from ..registration import register
     from ..template import load_template
 
-    opts = options if options is not None else CorrespondOptions()
+    opts = resolve(options, CorrespondOptions, {}, "correspond")
     template = template or load_template()
     timings = {}
     flags = []

@@ -54,13 +54,14 @@ with them vs up to 11 mm without):
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import minimize
 
 from ..geometry.mesh import Mesh, vertex_normals
 from ..geometry.transforms import rotation_angle, rotation_from_vector
+from ..options import resolve
 from .._core import blend_normal_equations
 
 
@@ -339,12 +340,7 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
     -------
     ExpressionFit
     """
-    o = options if options is not None else ExpressionOptions()
-    if overrides:
-        try:
-            o = replace(o, **overrides)
-        except TypeError as e:
-            raise TypeError(f"fit_expression: {e}") from None
+    o = resolve(options, ExpressionOptions, overrides, "fit_expression")
     if o.weights not in ("paper", "uniform"):
         raise ValueError(f"weights must be 'paper' or 'uniform', got {o['weights']!r}")
     if o.solver not in ("newton", "lbfgsb"):

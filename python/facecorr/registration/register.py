@@ -18,6 +18,7 @@ from threadpoolctl import threadpool_limits
 from ..errors import RegistrationError
 from ..geometry.mesh import Mesh
 from ..geometry.spatial import mhd
+from ..options import resolve
 from ..names import LANDMARK_NAMES
 from .alignment import ALIGN_MODES, align_landmarks, apply_transform
 from .expression import ExpressionFit, ExpressionOptions, fit_expression, rim_mask
@@ -222,11 +223,9 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
 
     t_start = time.perf_counter()
     template = template if template is not None else load_template()
-    opts = options if options is not None else RegisterOptions()
+    opts = resolve(options, RegisterOptions, {}, "register")
     if not isinstance(mesh, Mesh):
         raise TypeError("mesh must be a facecorr.Mesh")
-    if not isinstance(opts, RegisterOptions):
-        raise TypeError("options must be a facecorr.registration.RegisterOptions")
     scan_lm = _landmark_array(landmarks)
     ids = np.asarray(template.landmark_ids, dtype=np.int64)
     timings = {}

@@ -8,12 +8,13 @@ wraps the result.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from .. import _core
 from ..geometry.mesh import Mesh
+from ..options import resolve
 
 #: The defaults: the paper's weights (ω_data 1, ω_smooth 20000, ω_rigid 10, halving, ≤ 1000 L-BFGS
 #: iterations per solve). Measured on synthetic test scans (BENCHMARKS.md, "Registration
@@ -91,12 +92,7 @@ def fit_shape(vertices, faces, scan: Mesh, anchors=None, template_weight=None,
     -------
     ShapeFit
     """
-    opts = options if options is not None else ShapeFitOptions()
-    if overrides:
-        try:
-            opts = replace(opts, **overrides)
-        except TypeError as e:
-            raise TypeError(f"fit_shape: {e}") from None
+    opts = resolve(options, ShapeFitOptions, overrides, "fit_shape")
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     if anchors is None:
