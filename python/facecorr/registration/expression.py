@@ -27,11 +27,8 @@ flip between two states; a round whose step does not shrink and turns back is ha
 invalid matches (a badly matched region pulls harder). ``weights="uniform"`` (all ω = 1 on valid
 matches, stop when α converges) is the default, and the point-to-plane energy is blended with
 30 % point-to-point (``point_to_point=0.3``): jaw opening moves the chin mostly *along* its
-surface, which point-to-plane alone does not see. Measured on 14 synthetic test scans (with the
-6706-vertex template of that time) and the
-same shape fit (BENCHMARKS.md): dense error 2.54 mm (paper schedule) -> 2.15 (uniform) -> 1.90
-(uniform + 0.3 point-to-point); mouth region 4.55 -> 3.44 -> 2.57 mm. ``weights="paper",
-point_to_point=0`` is the paper's method.
+surface, which point-to-plane alone does not see (measured: BENCHMARKS.md, "Where the defaults
+come from"). ``weights="paper", point_to_point=0`` is the paper's method.
 
 Beyond the paper (defaults; ``identity=None, refine_rigid=False, alpha_prior=0`` is the paper's
 fit): the M modes of an identity basis (:mod:`.identity`) are fitted with α as unbounded weights β
@@ -104,13 +101,13 @@ class ExpressionFit:
 
 @dataclass(frozen=True)
 class ExpressionOptions:
-    """Settings of :func:`fit_expression` (lengths in mm, angles in degrees); see the module docstring for each choice and BENCHMARKS.md for the measurements behind the defaults."""
+    """Settings of :func:`fit_expression` (lengths in mm, angles in degrees); the module docstring
+    explains each choice, BENCHMARKS.md ("Where the defaults come from") the measurements."""
 
     phi_deg: float = 80.0
     chin_start: float = 0.8
     mouth_stop: float = 0.6
-    # nearest-vertex ICP creeps: with the identity modes, 70 bu3dfe test scans (predicted
-    # landmarks, identity_prior 15): 40 rounds dense 1.509 mm, 50 rounds 1.486, 70 / 100 1.488
+    # nearest-vertex ICP creeps: the dense error settles by ~50 rounds
     max_rounds: int = 50
     max_stage_rounds: int = 8
     alpha_tol: float = 1e-3
@@ -122,14 +119,10 @@ class ExpressionOptions:
     point_to_point: float = 0.3
     refine_affine: bool = False
     landmark_weight: float = 1.0
-    # with the identity basis (identity.py), 70 bu3dfe test scans, predicted landmarks, dense /
-    # eyebrows / mouth mm: alpha_prior 0.3 -> 1.69 / 1.92 / 1.38, 1.0 -> 1.68 / 1.83 / 1.39
+    # a ridge keeping unused blendshapes at 0 (with the identity basis, which could imitate them)
     alpha_prior: float = 1.0
-    # β prior in mm² (modes are 1 σ), relaxed from 10000 by halving per round: a stiff start
-    # lets the rigid pose and the expression settle before the identity moves (14 scans with true
-    # landmarks, an earlier basis: dense 1.85 mm with a fixed prior of 1000, 1.68 annealed).
-    # Final prior, 70 test scans, 40 rounds, dense / eyebrows mm: 5 -> 1.528 / 1.64, 15 -> 1.509 /
-    # 1.59, 30 -> 1.521 / 1.62, 50 -> 1.545 / 1.64 (20 rounds: 30 -> 1.662, 100 -> 1.682)
+    # β prior in mm² (modes are 1 σ), relaxed from identity_prior_start by identity_prior_decay
+    # per round: a stiff start lets the rigid pose and the expression settle before the identity moves
     identity_prior: float = 15.0
     identity_prior_start: float = 1e4
     sample_stride: int = 1
@@ -138,9 +131,7 @@ class ExpressionOptions:
     # A round's step is halved when it is not smaller than the last one and ("reversal") points
     # back against it: an oscillation; "growth" halves any step not smaller than the last, which
     # also brakes the slow creep of ICP along one direction. When consecutive steps agree (cosine
-    # > 0.9) the step is stretched by ``overrelax``. 70 test scans (dense / eyebrows mm,
-    # expression s in a 2-process pool): growth 1.489 / 1.57, 1.52, 0.91 s; reversal 1.461 /
-    # 1.49, 1.47, 0.82 s; reversal + overrelax 1.5: 1.457 / 1.48, 1.47, 0.79 s; 2.0: 1.458, 0.78 s.
+    # > 0.9) the step is stretched by ``overrelax``.
     damping: str = "reversal"
     overrelax: float = 1.5
     identity_prior_decay: float = 0.5

@@ -17,16 +17,15 @@ from ..geometry.mesh import Mesh
 from ..options import resolve
 
 #: The defaults: the paper's weights (ω_data 1, ω_smooth 20000, ω_rigid 10, halving, ≤ 1000 L-BFGS
-#: iterations per solve). Measured on synthetic test scans (BENCHMARKS.md, "Registration
-#: (issue 5)"): 8 weight levels (ω_smooth down to 156; 6 / 8 / 10 levels: dense error 1.92 /
-#: 1.83 / 1.82 mm, shape CPU 0.47 / 0.73 / 0.83 s on 14 scans), L-BFGS memory 5 (same error as
-#: 10, -20 % CPU), relative-change tolerances 1e-3 for an inner solve (the paper's 1e-4 costs
-#: twice the evaluations for 0.004 mm) and 1e-2 for "negligible" (when to relax).
+#: iterations per solve) with fewer weight levels (8: ω_smooth down to 156), L-BFGS memory 5 and
+#: relative-change tolerances 1e-3 for an inner solve and 1e-2 for "negligible" (when to relax):
+#: about the same error for less CPU (BENCHMARKS.md, "Where the defaults come from").
 #: ``rel_tol=1e-4, n_levels=12, memory=10, relax_tol=1e-3, max_distance=inf`` is the paper-literal
 #: run.
 @dataclass(frozen=True)
 class ShapeFitOptions:
-    """Settings of :func:`fit_shape` (the paper's weights and halving schedule; lengths in mm, angles in degrees). The Rust core receives every field; it has no defaults of its own."""
+    """Settings of :func:`fit_shape` (the paper's weights and halving schedule; lengths in mm,
+    angles in degrees). The Rust binding receives every field; it has no defaults of its own."""
 
     w_data: float = 1.0
     w_smooth: float = 20000.0
@@ -42,10 +41,7 @@ class ShapeFitOptions:
     # Matches farther than this (mm) are dropped (the paper: none, inf). The template's nostril
     # rims have no counterpart on a scan (nostrils are holes), and without a cap they were pulled
     # onto the skin around, bending the nose; some of them flipped between two surfaces every ICP
-    # update (hundreds of wasted L-BFGS iterations). 70 bu3dfe test scans, predicted landmarks,
-    # inf / 10 / 7 / 5 / 3 mm: nose 0.94 / 0.73 / 0.67 / 0.67 / 0.67 mm, dense 1.457 / 1.448 /
-    # 1.452 / 1.453 / 1.451, eyebrows 1.48 / 1.50 / 1.51 / 1.51 / 1.51, shape 0.32 / 0.28 / 0.21 /
-    # 0.20 / 0.20 s (2 processes). The MHD rises (0.97 -> 1.07 mm at 5): those vertices now stay
+    # update (hundreds of wasted L-BFGS iterations). The MHD rises a little: those vertices stay
     # where the smoothness puts them, inside the holes, instead of on the nearest skin.
     max_distance: float = 5.0
     reject_boundary: bool = True
