@@ -1,11 +1,13 @@
 """Shape fitting (Rust) against the numpy reference tests/ref_shape_fit.py, and end to end."""
 
+from dataclasses import asdict
+
 import numpy as np
 import pytest
 
 from facecorr import _core
 from facecorr.geometry.mesh import Mesh
-from facecorr.registration.shape import fit_shape
+from facecorr.registration.shape import ShapeFitOptions, fit_shape
 
 from ref_shape_fit import shape_energy
 
@@ -107,3 +109,18 @@ def test_bad_input_is_a_value_error():
         fit_shape(v, f, scan, n_levels=0)
     with pytest.raises(TypeError, match="unexpected keyword argument 'w_smoth'"):
         fit_shape(v, f, scan, w_smoth=1.0)
+
+
+def test_rust_defaults_agree_with_the_dataclass():
+    # The dataclass is the source of truth (the binding has no defaults); Rust's Default mirrors it.
+    assert _core.shape_fit_default_options() == asdict(ShapeFitOptions())
+
+
+def test_binding_has_no_defaults():
+    v, f = grid(4, 4, 1.0, lambda x, y: 0 * x)
+    scan = Mesh(v, f)
+    args = (v, f, scan.vertices, scan.vertex_normals, scan.is_boundary, np.zeros(0, np.int64), np.zeros((0, 3)))
+    kw = dict(asdict(ShapeFitOptions()), template_weight=None)
+    for name in kw:
+        with pytest.raises(TypeError, match=name):
+            _core.shape_fit(*args, **{k: x for k, x in kw.items() if k != name})

@@ -16,6 +16,8 @@
 
 use rayon::prelude::*;
 
+use crate::vec3::{cross, dot};
+
 /// Output of [`normal_equations`]: H row-major (n_x × n_x, symmetric), g (n_x), c.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NormalEquations {
@@ -47,11 +49,6 @@ impl Acc {
         self.c += o.c;
         self
     }
-}
-
-#[inline]
-fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 struct Ctx<'a> {
@@ -109,12 +106,10 @@ fn accumulate(acc: &mut Acc, chunk: &[usize], ctx: &Ctx) {
         }
         if rigid {
             // n · (ω × v) = ω · (v × n)
-            jac[k] = vi[1] * nn[2] - vi[2] * nn[1];
-            jac[k + 1] = vi[2] * nn[0] - vi[0] * nn[2];
-            jac[k + 2] = vi[0] * nn[1] - vi[1] * nn[0];
+            jac[k..k + 3].copy_from_slice(&cross(*vi, *nn));
             jac[k + 3..k + 6].copy_from_slice(nn);
         }
-        let ci = dot3(d, nn);
+        let ci = dot(*d, *nn);
         let pw = pw_scale * wi;
         for a in 0..n_x {
             let s = pw * jac[a];
@@ -136,7 +131,7 @@ fn accumulate(acc: &mut Acc, chunk: &[usize], ctx: &Ctx) {
             for c in 0..k {
                 acc.g[c] += lw * (e[0] * b0[c] + e[1] * b1[c] + e[2] * b2[c]);
             }
-            acc.c += lw * dot3(d, d);
+            acc.c += lw * dot(*d, *d);
             if rigid {
                 // R = [−[v]× | I] (3 × 6), row by row; Q = Lᵀ R
                 let r: [[f64; 6]; 3] = [
@@ -238,6 +233,7 @@ pub fn normal_equations(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::vec3::norm;
 
     fn lcg(seed: &mut u64) -> f64 {
         *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
@@ -259,7 +255,7 @@ mod tests {
         let qn: Vec<[f64; 3]> = p3(&mut sd)
             .into_iter()
             .map(|a| {
-                let l = dot3(&a, &a).sqrt();
+                let l = norm(a);
                 [a[0] / l, a[1] / l, a[2] / l]
             })
             .collect();
@@ -289,7 +285,7 @@ mod tests {
                 for r in 0..3 {
                     s[r] += cr[r] + t[r];
                 }
-                let rp = dot3(&da[i], &qn[i]) - dot3(&s, &qn[i]);
+                let rp = dot(da[i], qn[i]) - dot(s, qn[i]);
                 let rr: f64 = (0..3).map(|r| (da[i][r] - s[r]).powi(2)).sum();
                 e += w[i] * ((1.0 - lam) * rp * rp + lam * rr);
             }
@@ -311,7 +307,7 @@ mod tests {
             }
             for a in 0..k {
                 for b in 0..k {
-                    h[a * nx + b] += lam * w[i] * dot3(&u[a], &u[b]);
+                    h[a * nx + b] += lam * w[i] * dot(u[a], u[b]);
                 }
             }
         }

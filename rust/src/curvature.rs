@@ -33,9 +33,8 @@
 //! `boundary_rings` rings of the boundary (fits there are one-sided; 0 = only the boundary
 //! vertices themselves). Defaults and how they were chosen: `python/facecorr/curvature.py`.
 
-use crate::mesh::{
-    boundary_from_edge_counts, cross, dot, edges_with_counts, norm, normalized, sub, vertex_normals, Adjacency, Face, Vec3,
-};
+use crate::mesh::{boundary_from_edge_counts, edges_with_counts, vertex_normals, Adjacency, Face};
+use crate::vec3::{cross, dot, norm, normalized, sub, Vec3};
 use rayon::prelude::*;
 
 /// The fewest points a quadric fit uses (6 unknowns; some redundancy against noise).
@@ -383,7 +382,8 @@ pub fn umbilics(v: &[Vec3], f: &[Face], k1: &[f64], k2: &[f64], opts: &UmbilicOp
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::{boundary_vertices, scale};
+    use crate::mesh::boundary_vertices;
+    use crate::vec3::scale;
 
     /// Icosphere-like UV-free sphere: subdivided octahedron projected to radius r.
     fn sphere(r: f64, levels: usize) -> (Vec<Vec3>, Vec<Face>) {
@@ -413,7 +413,7 @@ mod tests {
                 for k in 0..3 {
                     let (a, b) = (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]));
                     m[k] = *mid.entry((a, b)).or_insert_with(|| {
-                        v.push(normalized(crate::mesh::add(v[a], v[b])));
+                        v.push(normalized(crate::vec3::add(v[a], v[b])));
                         v.len() - 1
                     });
                 }

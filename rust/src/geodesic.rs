@@ -31,6 +31,8 @@ use std::sync::Mutex;
 
 use rayon::prelude::*;
 
+use crate::vec3::{cross, dot, norm, sub};
+
 /// Angles with a cosine below this (about 95 degrees) are split by unfolding. Angles just
 /// above 90 degrees (common in quad-derived meshes) barely affect the updates and splitting
 /// them only costs stencils.
@@ -165,19 +167,6 @@ pub struct GeodesicSolver {
     pool: Mutex<Vec<Workspace>>,
 }
 
-#[inline]
-fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-#[inline]
-fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-#[inline]
-fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
 /// Build a CSR (offsets, values) from (key, value) pairs with keys < n.
 fn csr<T: Copy>(n: usize, pairs: &[(u32, T)]) -> (Vec<u32>, Vec<T>) {
     let mut off = vec![0u32; n + 1];
@@ -288,11 +277,11 @@ fn find_split_vertex(
     let a = faces[f][(ci + 1) % 3];
     let b = faces[f][(ci + 2) % 3];
     let (pc, pa, pb) = (&verts[c as usize], &verts[a as usize], &verts[b as usize]);
-    let ca = sub(pa, pc);
-    let cb = sub(pb, pc);
-    let la = dot(&ca, &ca).sqrt();
-    let bx = dot(&cb, &ca) / la;
-    let by = (dot(&cb, &cb) - bx * bx).max(0.0).sqrt();
+    let ca = sub(*pa, *pc);
+    let cb = sub(*pb, *pc);
+    let la = norm(ca);
+    let bx = dot(cb, ca) / la;
+    let by = (dot(cb, cb) - bx * bx).max(0.0).sqrt();
     let a2 = [la, 0.0];
     let b2 = [bx, by];
     // The acute sub-cone: angle(d) in (theta - 90deg, 90deg), theta = angle of b (> 90deg).
@@ -313,12 +302,12 @@ fn find_split_vertex(
         let d = *gf.iter().find(|&&x| x != p && x != q)?;
         let pd = &verts[d as usize];
         let lpd2 = {
-            let e = sub(pd, &verts[p as usize]);
-            dot(&e, &e)
+            let e = sub(*pd, verts[p as usize]);
+            dot(e, e)
         };
         let lqd2 = {
-            let e = sub(pd, &verts[q as usize]);
-            dot(&e, &e)
+            let e = sub(*pd, verts[q as usize]);
+            dot(e, e)
         };
         let e = [q2[0] - p2[0], q2[1] - p2[1]];
         let l = (e[0] * e[0] + e[1] * e[1]).sqrt();
@@ -418,10 +407,10 @@ impl GeodesicSolver {
         let face_area: Vec<f64> = faces
             .iter()
             .map(|f| {
-                let e1 = sub(&verts[f[1] as usize], &verts[f[0] as usize]);
-                let e2 = sub(&verts[f[2] as usize], &verts[f[0] as usize]);
-                let c = cross(&e1, &e2);
-                0.5 * dot(&c, &c).sqrt()
+                let e1 = sub(verts[f[1] as usize], verts[f[0] as usize]);
+                let e2 = sub(verts[f[2] as usize], verts[f[0] as usize]);
+                let c = cross(e1, e2);
+                0.5 * norm(c)
             })
             .collect();
 
@@ -444,8 +433,8 @@ impl GeodesicSolver {
         let mut pairs: Vec<(u32, (u32, f64))> = Vec::with_capacity(keys.len() * 2);
         let mut max_edge: f64 = 0.0;
         for &(a, b) in &keys {
-            let e = sub(&verts[a as usize], &verts[b as usize]);
-            let l = dot(&e, &e).sqrt();
+            let e = sub(verts[a as usize], verts[b as usize]);
+            let l = norm(e);
             max_edge = max_edge.max(l);
             pairs.push((a, (b, l)));
             pairs.push((b, (a, l)));
@@ -465,9 +454,9 @@ impl GeodesicSolver {
                     let a = f[(ci + 1) % 3];
                     let b = f[(ci + 2) % 3];
                     let pc = &verts[c as usize];
-                    let ea = sub(&verts[a as usize], pc);
-                    let eb = sub(&verts[b as usize], pc);
-                    let (gaa, gbb, gab) = (dot(&ea, &ea), dot(&eb, &eb), dot(&ea, &eb));
+                    let ea = sub(verts[a as usize], *pc);
+                    let eb = sub(verts[b as usize], *pc);
+                    let (gaa, gbb, gab) = (dot(ea, ea), dot(eb, eb), dot(ea, eb));
                     out.push((a, make_stencil(c, b, gaa, gbb, gab)));
                     out.push((b, make_stencil(c, a, gbb, gaa, gab)));
                     if gab < OBTUSE_SPLIT_COS * (gaa * gbb).sqrt() && face_area[fi] > 0.0 {

@@ -42,6 +42,13 @@ impl KdTree3 {
         &self.points
     }
 
+    /// The nearest point of one query: (index, distance). The tree must not be empty.
+    #[inline]
+    pub fn nearest(&self, q: &[f64; 3]) -> (usize, f64) {
+        let r = self.tree.query(q).nearest_one::<SquaredEuclidean<f64>>().execute();
+        (r.item as usize, r.distance.sqrt())
+    }
+
     /// The `k` nearest neighbours of one query with distance `< upper_bound` (strict, as scipy),
     /// written into `dist[..k]` / `idx[..k]` (padding: `inf` / `n`).
     fn knn_one(&self, q: &[f64; 3], k: usize, upper_bound: f64, dist: &mut [f64], idx: &mut [u64]) {
@@ -53,11 +60,10 @@ impl KdTree3 {
         }
         let kk = NonZeroUsize::new(k.min(n)).unwrap();
         if k == 1 {
-            let r = self.tree.query(q).nearest_one::<SquaredEuclidean<f64>>().execute();
-            let d = r.distance.sqrt();
+            let (i, d) = self.nearest(q);
             if d < upper_bound {
                 dist[0] = d;
-                idx[0] = r.item as u64;
+                idx[0] = i as u64;
             }
             return;
         }

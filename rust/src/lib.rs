@@ -5,6 +5,7 @@
 //! the GIL, call.
 
 pub mod threads;
+pub mod vec3;
 pub mod mesh;
 pub mod kdtree;
 pub mod geodesic;

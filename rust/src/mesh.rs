@@ -7,43 +7,9 @@
 
 use rayon::prelude::*;
 
-pub type Vec3 = [f64; 3];
-pub type Face = [usize; 3];
+use crate::vec3::{add, cross, norm, normalized, sub, Vec3};
 
-#[inline]
-pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-#[inline]
-pub fn add(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-#[inline]
-pub fn scale(a: Vec3, s: f64) -> Vec3 {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-#[inline]
-pub fn dot(a: Vec3, b: Vec3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-#[inline]
-pub fn cross(a: Vec3, b: Vec3) -> Vec3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-#[inline]
-pub fn norm(a: Vec3) -> f64 {
-    dot(a, a).sqrt()
-}
-/// `a / |a|`, or zero when `|a| == 0`.
-#[inline]
-pub fn normalized(a: Vec3) -> Vec3 {
-    let n = norm(a);
-    if n > 0.0 {
-        scale(a, 1.0 / n)
-    } else {
-        [0.0; 3]
-    }
-}
+pub type Face = [usize; 3];
 
 /// (M) cross products (b - a) x (c - a): direction = face normal, length = 2 x area.
 pub fn face_normals_unnormalized(v: &[Vec3], f: &[Face]) -> Vec<Vec3> {

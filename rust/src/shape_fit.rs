@@ -18,7 +18,7 @@
 //!   ω_smooth = ω_smooth⁰·0.5^ℓ and ω_rigid = ω_rigid⁰·0.5^ℓ. Within a level we alternate
 //!   (ICP): re-find nearest neighbours and template normals for the current p̃, then run L-BFGS
 //!   with those correspondences fixed (≤ `max_iter` iterations, stop at relative energy change
-//!   < `rel_tol` = 1e-4). When the energy after a solve changes by less than `relax_tol`
+//!   < `rel_tol`, 1e-4 in the paper). When the energy after a solve changes by less than `relax_tol`
 //!   relative to the previous solve of the same level ("the energy change is negligible"), or
 //!   after `max_icp` solves, the weights are halved. The paper gives no last level; halving
 //!   forever would leave the data term alone (ill-posed), so `n_levels` bounds it.
@@ -33,12 +33,19 @@
 //! * **Schedule defaults** (8 levels, memory 5, tolerances 1e-3 / 1e-2) were measured against the
 //!   paper-literal run (12 levels, 1e-4): same accuracy, about half the work (BENCHMARKS.md).
 
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
+use crate::kdtree::KdTree3;
 use crate::lbfgs::{self, LbfgsOptions};
+use crate::mesh::vertex_normals;
+use crate::vec3::{add, dot, sub};
 
-/// Options of [`fit`] (defaults: the paper's values, see module docs).
+/// Options of [`fit`]: the paper's weights and the measured schedule (see module docs).
+///
+/// The Python dataclass `facecorr.registration.shape.ShapeFitOptions` is the source of truth for
+/// the default values: it passes every field to the binding, which has no defaults of its own.
+/// [`Default`] mirrors it (for Rust callers, tests and benches), and a pytest
+/// (`tests/test_shape_fit.py`, via `_core.shape_fit_default_options()`) checks that they agree.
 #[derive(Clone, Debug)]
 pub struct ShapeFitOptions {
     pub w_data: f64,
@@ -60,7 +67,7 @@ pub struct ShapeFitOptions {
     pub memory: usize,
     /// Normal test: a match counts only if the normals differ by at most this angle (degrees).
     pub normal_angle_deg: f64,
-    /// Matches farther than this (mm) are dropped (∞ = no cap, the paper).
+    /// Matches farther than this (mm) are dropped (∞ = no cap, the paper; default 5).
     pub max_distance: f64,
     /// Drop matches whose nearest scan vertex is on the scan's boundary (the paper: true).
     pub reject_boundary: bool,
@@ -88,7 +95,7 @@ impl Default for ShapeFitOptions {
             rel_tol: 1e-3,
             memory: 5,
             normal_angle_deg: 80.0,
-            max_distance: f64::INFINITY,
+            max_distance: 5.0,
             reject_boundary: true,
             w_landmark: 0.0,
             template_weight: Vec::new(),
@@ -233,7 +240,7 @@ pub fn energy_gradient(
             if wi != 0.0 {
                 let pt = apply(t, p);
                 let (q, n) = (&corr.target[i], &corr.normal[i]);
-                let r = (q[0] - pt[0]) * n[0] + (q[1] - pt[1]) * n[1] + (q[2] - pt[2]) * n[2];
+                let r = dot(sub(*q, pt), *n);
                 e_data = wi * r * r;
                 let s = -2.0 * w.data * wi * r;
                 let ph = [p[0], p[1], p[2], 1.0];
@@ -256,11 +263,10 @@ pub fn energy_gradient(
             // Rigidity on the columns a_k = (t[k], t[4+k], t[8+k]) of the linear part.
             let col = |k: usize| [t[k], t[4 + k], t[8 + k]];
             let a = [col(0), col(1), col(2)];
-            let dotp = |u: &[f64; 3], v: &[f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
             let mut gram = [[0.0; 3]; 3];
             for k in 0..3 {
                 for l in 0..3 {
-                    gram[k][l] = dotp(&a[k], &a[l]);
+                    gram[k][l] = dot(a[k], a[l]);
                 }
             }
             let e_rigid = gram[0][1] * gram[0][1]
@@ -302,33 +308,9 @@ pub fn energy_gradient(
     EnergyParts { total, data: parts[0], smooth: parts[1], rigid: parts[2], landmark: parts[3] }
 }
 
-/// Area-weighted unit vertex normals of a triangle mesh (zero for isolated vertices).
-pub fn vertex_normals(v: &[[f64; 3]], faces: &[[usize; 3]]) -> Vec<[f64; 3]> {
-    let mut n = vec![[0.0f64; 3]; v.len()];
-    for f in faces {
-        let (a, b, c) = (v[f[0]], v[f[1]], v[f[2]]);
-        let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let cr = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
-        for &k in f {
-            for d in 0..3 {
-                n[k][d] += cr[d];
-            }
-        }
-    }
-    n.par_iter_mut().for_each(|x| {
-        let l = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
-        if l > 0.0 {
-            x.iter_mut().for_each(|c| *c /= l);
-        }
-    });
-    n
-}
-
 /// The scan side of the fit: its vertices in a KD-tree (built once), unit normals, boundary flags.
 pub struct ScanTarget {
-    tree: ImmutableKdTree<f64, 3>,
-    pub points: Vec<[f64; 3]>,
+    tree: KdTree3,
     pub normals: Vec<[f64; 3]>,
     pub is_boundary: Vec<bool>,
 }
@@ -337,8 +319,13 @@ impl ScanTarget {
     pub fn new(points: Vec<[f64; 3]>, normals: Vec<[f64; 3]>, is_boundary: Vec<bool>) -> Self {
         assert!(!points.is_empty(), "scan has no vertices");
         assert!(points.len() == normals.len() && points.len() == is_boundary.len(), "scan arrays differ in length");
-        let tree = ImmutableKdTree::new_from_slice(&points).expect("KD-tree construction failed");
-        Self { tree, points, normals, is_boundary }
+        let tree = KdTree3::new(points).expect("KD-tree construction failed");
+        Self { tree, normals, is_boundary }
+    }
+
+    /// The scan vertices (the KD-tree's points).
+    pub fn points(&self) -> &[[f64; 3]] {
+        self.tree.points()
     }
 
     /// Nearest scan vertex of every query point: (index, distance).
@@ -346,10 +333,7 @@ impl ScanTarget {
         queries
             .par_iter()
             .with_min_len(256)
-            .map(|q| {
-                let nn = self.tree.query(q).nearest_one::<SquaredEuclidean<f64>>().execute();
-                (nn.item as usize, nn.distance.sqrt())
-            })
+            .map(|q| self.tree.nearest(q))
             .collect()
     }
 
@@ -360,8 +344,8 @@ impl ScanTarget {
         let nn = self.nearest(deformed);
         let mut c = Correspondences { target: Vec::with_capacity(nn.len()), normal: Vec::with_capacity(nn.len()), weight: Vec::with_capacity(nn.len()), anchor: Vec::new() };
         for (i, &(j, d)) in nn.iter().enumerate() {
-            let (q, m, np) = (self.points[j], self.normals[j], normals[i]);
-            let cosang = m[0] * np[0] + m[1] * np[1] + m[2] * np[2];
+            let (q, m, np) = (self.points()[j], self.normals[j], normals[i]);
+            let cosang = dot(m, np);
             let ok = cosang >= cos_max && !(opts.reject_boundary && self.is_boundary[j]) && d <= opts.max_distance;
             c.target.push(q);
             c.normal.push(m);
@@ -502,9 +486,9 @@ pub fn fit(
             c[d] += v[d] / n as f64;
         }
     }
-    let pts: Vec<[f64; 3]> = vertices.iter().map(|v| [v[0] - c[0], v[1] - c[1], v[2] - c[2]]).collect();
+    let pts: Vec<[f64; 3]> = vertices.iter().map(|&v| sub(v, c)).collect();
     let shifted = ScanTarget::new(
-        scan.points.iter().map(|p| [p[0] - c[0], p[1] - c[1], p[2] - c[2]]).collect(),
+        scan.points().iter().map(|&p| sub(p, c)).collect(),
         scan.normals.clone(),
         scan.is_boundary.clone(),
     );
@@ -518,7 +502,7 @@ pub fn fit(
     let mut w = Weights { data: opts.w_data, smooth: opts.w_smooth, rigid: opts.w_rigid, landmark: opts.w_landmark };
     let mut anchor = vec![None; n];
     for &(i, l) in anchors {
-        anchor[i] = Some([l[0] - c[0], l[1] - c[1], l[2] - c[2]]);
+        anchor[i] = Some(sub(l, c));
     }
     let mut gbuf = vec![0.0; 12 * n];
     for level in 0..opts.n_levels {
@@ -568,7 +552,7 @@ pub fn fit(
     }
     // Back to the input frame: p̃ = A (p − c) + t + c = A p + (t + c − A c).
     let deformed = deform(&x, &pts);
-    let vertices_out = deformed.iter().map(|p| [p[0] + c[0], p[1] + c[1], p[2] + c[2]]).collect();
+    let vertices_out = deformed.iter().map(|&p| add(p, c)).collect();
     let transforms = (0..n)
         .map(|i| {
             let mut t = [0.0; 12];
@@ -683,8 +667,16 @@ mod tests {
         let anchors: Vec<(usize, [f64; 3])> = [10 * 21 + 10, 5 * 21 + 5, 5 * 21 + 15, 15 * 21 + 5, 15 * 21 + 15].iter().map(|&i| (i, roll(tv[i]))).collect();
         // Point-to-plane leaves tangential sliding free on the flat parts; five anchors (like the
         // landmarks the pipeline has) pin it. Without them the mean error is ~5 mm here.
-        // The paper-literal schedule: 12 levels, tolerances 1e-4 / 1e-3, memory 10.
-        let opts = ShapeFitOptions { w_landmark: 1.0, n_levels: 12, rel_tol: 1e-4, relax_tol: 1e-3, memory: 10, ..Default::default() };
+        // The paper-literal schedule: 12 levels, tolerances 1e-4 / 1e-3, memory 10, no distance cap.
+        let opts = ShapeFitOptions {
+            w_landmark: 1.0,
+            n_levels: 12,
+            rel_tol: 1e-4,
+            relax_tol: 1e-3,
+            memory: 10,
+            max_distance: f64::INFINITY,
+            ..Default::default()
+        };
         let res = fit(&tv, &tf, &scan, &anchors, &opts);
         let (mut worst, mut mean, mut count, mut off_surface) = (0.0f64, 0.0, 0, 0.0f64);
         for (p0, p) in tv.iter().zip(&res.vertices) {

@@ -1,7 +1,6 @@
 //! Bindings of `crate::curvature`: principal curvatures/directions and umbilics.
 
-use super::mesh::{mesh_from, vec3_to_array};
-use super::util::{run, value_err};
+use super::util::{mesh as mesh_from, run, value_err, vec3_to_array};
 use crate::curvature::{self as core, CurvatureOptions, UmbilicOptions};
 use numpy::ndarray::Array1;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};

@@ -1,50 +1,43 @@
-//! Bindings of `crate::geodesic` and `crate::fingerprint`: the `GeodesicSolver` class (private;
-//! wrapped by `facecorr.geodesic`).
+//! Bindings of `crate::geodesic`: the `GeodesicSolver` class (private; wrapped by
+//! `facecorr.geodesic`), whose `fingerprint` method calls `crate::fingerprint` on the solver it
+//! holds (the one-shot function is in py/fingerprint.rs).
 
 use std::sync::Arc;
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 
-use super::spatial::points3;
-use super::util::{run, value_err};
+use super::util::{ids, mesh, run, value_err};
 use crate::geodesic::{GeodesicSolver as Core, Method};
 
-/// Read (M, 3) int64 faces with indices in [0, n).
-pub(crate) fn faces3(a: &PyReadonlyArray2<'_, i64>, n: usize) -> PyResult<Vec<[u32; 3]>> {
-    let a = a.as_array();
-    if a.ncols() != 3 {
-        return Err(value_err(format!("faces must have shape (m, 3), got (m, {})", a.ncols())));
+/// A mesh for the geodesic core (u32 indices), validated by `util::mesh`.
+pub(super) fn mesh_u32(
+    v: &PyReadonlyArray2<'_, f64>,
+    f: &PyReadonlyArray2<'_, i64>,
+    what: &str,
+) -> PyResult<(Vec<[f64; 3]>, Vec<[u32; 3]>)> {
+    let (v, f) = mesh(v, f, what)?;
+    if v.len() > u32::MAX as usize {
+        return Err(value_err(format!("{what}: too many vertices ({})", v.len())));
     }
-    let mut out = Vec::with_capacity(a.nrows());
-    for (i, r) in a.rows().into_iter().enumerate() {
-        let mut f = [0u32; 3];
-        for k in 0..3 {
-            if r[k] < 0 || r[k] as u64 >= n as u64 {
-                return Err(value_err(format!(
-                    "face {i} has vertex index {} out of range [0, {n})",
-                    r[k]
-                )));
-            }
-            f[k] = r[k] as u32;
-        }
-        out.push(f);
-    }
-    Ok(out)
+    Ok((v, f.into_iter().map(|t| t.map(|i| i as u32)).collect()))
 }
 
-/// Read vertex indices in [0, n); `what` names them in errors.
-pub(crate) fn indices(a: &PyReadonlyArray1<'_, i64>, n: usize, what: &str) -> PyResult<Vec<u32>> {
-    a.as_array()
-        .iter()
-        .map(|&x| {
-            if x < 0 || x as u64 >= n as u64 {
-                Err(value_err(format!("{what} index {x} out of range [0, {n})")))
-            } else {
-                Ok(x as u32)
-            }
-        })
-        .collect()
+/// Vertex ids in [0, n) as u32 (`util::ids`).
+pub(super) fn vertex_ids(a: &PyReadonlyArray1<'_, i64>, n: usize, name: &str) -> PyResult<Vec<u32>> {
+    Ok(ids(a, n, name)?.into_iter().map(|i| i as u32).collect())
+}
+
+/// Finger Print radii: at least one, each finite and > 0.
+pub(super) fn check_radii(radii: &PyReadonlyArray1<'_, f64>) -> PyResult<Vec<f64>> {
+    let r: Vec<f64> = radii.as_array().to_vec();
+    if r.is_empty() {
+        return Err(value_err("radii is empty"));
+    }
+    if !r.iter().all(|x| x.is_finite() && *x > 0.0) {
+        return Err(value_err("radii must be finite and > 0"));
+    }
+    Ok(r)
 }
 
 fn method(s: &str) -> PyResult<Method> {
@@ -77,14 +70,7 @@ impl GeodesicSolver {
         vertices: PyReadonlyArray2<'_, f64>,
         faces: PyReadonlyArray2<'_, i64>,
     ) -> PyResult<Self> {
-        let v = points3(&vertices, "vertices")?;
-        if v.is_empty() {
-            return Err(value_err("the mesh has no vertices"));
-        }
-        let f = faces3(&faces, v.len())?;
-        if f.is_empty() {
-            return Err(value_err("the mesh has no faces"));
-        }
+        let (v, f) = mesh_u32(&vertices, &faces, "GeodesicSolver")?;
         let s = run(py, "GeodesicSolver", move || Core::new(&v, &f))?.map_err(value_err)?;
         Ok(Self { inner: Arc::new(s) })
     }
@@ -109,7 +95,7 @@ impl GeodesicSolver {
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let m = self::method(method)?;
         let md = max_dist(max_distance)?;
-        let src = indices(&sources, self.inner.n_vertices(), "source")?;
+        let src = vertex_ids(&sources, self.inner.n_vertices(), "sources")?;
         if src.is_empty() {
             return Err(value_err("sources is empty"));
         }
@@ -129,7 +115,7 @@ impl GeodesicSolver {
         let m = self::method(method)?;
         let md = max_dist(max_distance)?;
         let n = self.inner.n_vertices();
-        let src = indices(&sources, n, "source")?;
+        let src = vertex_ids(&sources, n, "sources")?;
         let ns = src.len();
         let s = self.inner.clone();
         let d = run(py, "GeodesicSolver.distance_matrix", move || s.distance_matrix(&src, md, m))?;
@@ -144,14 +130,8 @@ impl GeodesicSolver {
         centers: PyReadonlyArray1<'py, i64>,
         radii: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let c = indices(&centers, self.inner.n_vertices(), "center")?;
-        let r: Vec<f64> = radii.as_array().to_vec();
-        if r.is_empty() {
-            return Err(value_err("radii is empty"));
-        }
-        if !r.iter().all(|x| x.is_finite() && *x > 0.0) {
-            return Err(value_err("radii must be finite and > 0"));
-        }
+        let c = vertex_ids(&centers, self.inner.n_vertices(), "centers")?;
+        let r = check_radii(&radii)?;
         let (nc, nr) = (c.len(), r.len());
         let s = self.inner.clone();
         let out = run(py, "GeodesicSolver.fingerprint", move || {

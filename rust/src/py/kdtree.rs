@@ -6,25 +6,8 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyList;
 
-use super::util::{run, value_err};
+use super::util::{points3, run, value_err};
 use crate::kdtree::KdTree3;
-
-/// Read an (n, 3) float64 array of finite values into points; `what` names it in errors.
-pub(crate) fn points3(a: &PyReadonlyArray2<'_, f64>, what: &str) -> PyResult<Vec<[f64; 3]>> {
-    let a = a.as_array();
-    if a.ncols() != 3 {
-        return Err(value_err(format!("{what} must have shape (n, 3), got (n, {})", a.ncols())));
-    }
-    let mut out = Vec::with_capacity(a.nrows());
-    for (i, r) in a.rows().into_iter().enumerate() {
-        let p = [r[0], r[1], r[2]];
-        if !p.iter().all(|x| x.is_finite()) {
-            return Err(value_err(format!("{what} row {i} is not finite (NaN or inf)")));
-        }
-        out.push(p);
-    }
-    Ok(out)
-}
 
 /// KD-tree over (N, 3) points; k-nearest and radius queries parallel over the queries.
 #[pyclass(frozen, module = "facecorr._core")]

@@ -1,14 +1,15 @@
-//! PyO3 bindings, one file per core module. Each binding converts and validates its arguments,
-//! releases the GIL and calls the core through `util::run`, which also turns a Rust panic into a
-//! Python `RuntimeError` instead of a crash.
+//! PyO3 bindings, one file per core module, named as it (py/kdtree.rs binds kdtree.rs, ...);
+//! util.rs holds what they share (running a kernel, the vertex / index array validator). Each
+//! binding converts and validates its arguments, releases the GIL and calls the core through
+//! `util::run`, which also turns a Rust panic into a Python `RuntimeError` instead of a crash.
 
 use pyo3::prelude::*;
 
 mod util;
 mod mesh;
-mod spatial;
+mod kdtree;
 mod geodesic;
-mod descriptors;
+mod fingerprint;
 mod curvature;
 mod raster;
 mod shape_fit;
@@ -19,9 +20,9 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(util::n_threads, m)?)?;
     mesh::register(m)?;
-    spatial::register(m)?;
+    kdtree::register(m)?;
     geodesic::register(m)?;
-    descriptors::register(m)?;
+    fingerprint::register(m)?;
     curvature::register(m)?;
     raster::register(m)?;
     shape_fit::register(m)?;

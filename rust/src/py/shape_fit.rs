@@ -1,43 +1,21 @@
 //! Bindings of `shape_fit` (paper §4.3): the whole fit, and the energy + gradient for tests.
 
-use numpy::ndarray::{Array2, Array3, ArrayView2};
+use numpy::ndarray::{Array2, Array3};
 use numpy::{IntoPyArray, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use super::util::{run, value_err};
+use super::util::{ids, index_rows, points3, run, value_err};
 use crate::shape_fit::{self as core_fit, Adjacency, Correspondences, ScanTarget, ShapeFitOptions, Weights};
 
-fn points3(a: &ArrayView2<f64>, name: &str) -> PyResult<Vec<[f64; 3]>> {
-    if a.ncols() != 3 {
-        return Err(value_err(format!("{name} must have shape (N, 3), got ({}, {})", a.nrows(), a.ncols())));
+fn anchors(anchor_ids: &PyReadonlyArray1<i64>, pts: &PyReadonlyArray2<f64>, n: usize) -> PyResult<Vec<(usize, [f64; 3])>> {
+    let p = points3(pts, "anchor_points")?;
+    let n_ids = anchor_ids.as_array().len();
+    if n_ids != p.len() {
+        return Err(value_err(format!("anchor_ids has {n_ids} entries but anchor_points {} rows", p.len())));
     }
-    if a.iter().any(|v| !v.is_finite()) {
-        return Err(value_err(format!("{name} contains NaN or infinite values")));
-    }
-    Ok(a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect())
-}
-
-fn index_rows<const K: usize>(a: &ArrayView2<i64>, n: usize, name: &str) -> PyResult<Vec<[usize; K]>> {
-    if a.ncols() != K {
-        return Err(value_err(format!("{name} must have shape (M, {K}), got ({}, {})", a.nrows(), a.ncols())));
-    }
-    if let Some(bad) = a.iter().find(|&&v| v < 0 || v as usize >= n) {
-        return Err(value_err(format!("{name} holds index {bad} outside [0, {})", n)));
-    }
-    Ok(a.rows().into_iter().map(|r| std::array::from_fn(|k| r[k] as usize)).collect())
-}
-
-fn anchors(ids: &PyReadonlyArray1<i64>, pts: &PyReadonlyArray2<f64>, n: usize) -> PyResult<Vec<(usize, [f64; 3])>> {
-    let ids = ids.as_array();
-    let p = points3(&pts.as_array(), "anchor_points")?;
-    if ids.len() != p.len() {
-        return Err(value_err(format!("anchor_ids has {} entries but anchor_points {} rows", ids.len(), p.len())));
-    }
-    if let Some(bad) = ids.iter().find(|&&v| v < 0 || v as usize >= n) {
-        return Err(value_err(format!("anchor_ids holds vertex id {bad} outside [0, {n})")));
-    }
-    Ok(ids.iter().zip(p).map(|(&i, q)| (i as usize, q)).collect())
+    let i = ids(anchor_ids, n, "anchor_ids")?;
+    Ok(i.into_iter().zip(p).collect())
 }
 
 fn nonneg(v: f64, name: &str) -> PyResult<f64> {
@@ -67,7 +45,7 @@ fn shape_fit_energy<'py>(
     w_rigid: f64,
     w_landmark: f64,
 ) -> PyResult<(f64, f64, f64, f64, f64, Bound<'py, PyArray2<f64>>)> {
-    let p = points3(&points.as_array(), "points")?;
+    let p = points3(&points, "points")?;
     let n = p.len();
     let xa = x.as_array();
     if xa.dim() != (n, 12) {
@@ -77,9 +55,9 @@ fn shape_fit_energy<'py>(
         return Err(value_err("x contains NaN or infinite values"));
     }
     let xv: Vec<f64> = xa.iter().copied().collect();
-    let e = index_rows::<2>(&edges.as_array(), n, "edges")?;
-    let t = points3(&targets.as_array(), "targets")?;
-    let nm = points3(&normals.as_array(), "normals")?;
+    let e = index_rows::<2>(&edges, n, "edges")?;
+    let t = points3(&targets, "targets")?;
+    let nm = points3(&normals, "normals")?;
     let w: Vec<f64> = weights.as_array().to_vec();
     if t.len() != n || nm.len() != n || w.len() != n {
         return Err(value_err(format!("targets, normals and weights must have {n} rows")));
@@ -109,12 +87,13 @@ fn shape_fit_energy<'py>(
 }
 
 /// The shape fit of §4.3. Returns (vertices (N, 3), transforms (N, 3, 4), solves: list of dicts).
+/// Every option is a required keyword (`template_weight` may be None): the defaults live in one
+/// place, the Python dataclass `facecorr.registration.shape.ShapeFitOptions`.
 #[pyfunction]
 #[pyo3(signature = (template_vertices, template_faces, scan_vertices, scan_normals, scan_is_boundary,
-    anchor_ids, anchor_points, *, w_data=1.0, w_smooth=20000.0, w_rigid=10.0, relax_factor=0.5,
-    n_levels=12, max_icp=5, relax_tol=1e-3, max_iter=1000, rel_tol=1e-4, memory=10,
-    normal_angle_deg=80.0, max_distance=f64::INFINITY, reject_boundary=true, w_landmark=0.0,
-    template_weight=None, precondition=true))]
+    anchor_ids, anchor_points, *, w_data, w_smooth, w_rigid, relax_factor, n_levels, max_icp, relax_tol,
+    max_iter, rel_tol, memory, normal_angle_deg, max_distance, reject_boundary, w_landmark, template_weight,
+    precondition))]
 #[allow(clippy::too_many_arguments)]
 fn shape_fit<'py>(
     py: Python<'py>,
@@ -142,20 +121,20 @@ fn shape_fit<'py>(
     template_weight: Option<PyReadonlyArray1<'py, f64>>,
     precondition: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>, Vec<Bound<'py, PyDict>>)> {
-    let tv = points3(&template_vertices.as_array(), "template_vertices")?;
+    let tv = points3(&template_vertices, "template_vertices")?;
     let n = tv.len();
     if n == 0 {
         return Err(value_err("template_vertices is empty"));
     }
-    let tf = index_rows::<3>(&template_faces.as_array(), n, "template_faces")?;
+    let tf = index_rows::<3>(&template_faces, n, "template_faces")?;
     if tf.is_empty() {
         return Err(value_err("template_faces is empty"));
     }
-    let sv = points3(&scan_vertices.as_array(), "scan_vertices")?;
+    let sv = points3(&scan_vertices, "scan_vertices")?;
     if sv.is_empty() {
         return Err(value_err("scan_vertices is empty"));
     }
-    let sn = points3(&scan_normals.as_array(), "scan_normals")?;
+    let sn = points3(&scan_normals, "scan_normals")?;
     let sb: Vec<bool> = scan_is_boundary.as_array().to_vec();
     if sn.len() != sv.len() || sb.len() != sv.len() {
         return Err(value_err(format!("scan_normals and scan_is_boundary must have {} rows", sv.len())));
@@ -231,7 +210,32 @@ fn shape_fit<'py>(
     Ok((verts, tr, solves))
 }
 
+/// `ShapeFitOptions::default()` of the Rust core as a dict (without `template_weight`), for the
+/// test that it agrees with the Python dataclass, the source of truth.
+#[pyfunction]
+fn shape_fit_default_options(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let o = ShapeFitOptions::default();
+    let d = PyDict::new(py);
+    d.set_item("w_data", o.w_data)?;
+    d.set_item("w_smooth", o.w_smooth)?;
+    d.set_item("w_rigid", o.w_rigid)?;
+    d.set_item("relax_factor", o.relax_factor)?;
+    d.set_item("n_levels", o.n_levels)?;
+    d.set_item("max_icp", o.max_icp)?;
+    d.set_item("relax_tol", o.relax_tol)?;
+    d.set_item("max_iter", o.max_iter)?;
+    d.set_item("rel_tol", o.rel_tol)?;
+    d.set_item("memory", o.memory)?;
+    d.set_item("normal_angle_deg", o.normal_angle_deg)?;
+    d.set_item("max_distance", o.max_distance)?;
+    d.set_item("reject_boundary", o.reject_boundary)?;
+    d.set_item("w_landmark", o.w_landmark)?;
+    d.set_item("precondition", o.precondition)?;
+    Ok(d)
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(shape_fit_default_options, m)?)?;
     m.add_function(wrap_pyfunction!(shape_fit_energy, m)?)?;
     m.add_function(wrap_pyfunction!(shape_fit, m)?)?;
     Ok(())
