@@ -104,37 +104,32 @@ class ExpressionOptions:
     """Settings of :func:`fit_expression` (lengths in mm, angles in degrees); the module docstring
     explains each choice, BENCHMARKS.md ("Where the defaults come from") the measurements."""
 
-    phi_deg: float = 80.0
-    chin_start: float = 0.8
-    mouth_stop: float = 0.6
-    # nearest-vertex ICP creeps: the dense error settles by ~50 rounds
-    max_rounds: int = 50
-    max_stage_rounds: int = 8
-    alpha_tol: float = 1e-3
-    max_distance: float = 10.0
-    reject_boundary: bool = True
-    lip_rim_rings: int = 1
-    weights: str = "uniform"
-    solver: str = "newton"
-    point_to_point: float = 0.3
-    refine_affine: bool = False
-    landmark_weight: float = 1.0
-    # a ridge keeping unused blendshapes at 0 (with the identity basis, which could imitate them)
-    alpha_prior: float = 1.0
-    # β prior in mm² (modes are 1 σ), relaxed from identity_prior_start by identity_prior_decay
-    # per round: a stiff start lets the rigid pose and the expression settle before the identity moves
-    identity_prior: float = 15.0
-    identity_prior_start: float = 1e4
-    sample_stride: int = 1
-    # re-solve a small rigid motion each round (the similarity from 8 landmarks is ~1 mm off)
-    refine_rigid: bool = True
+    phi_deg: float = 80.0             # normal test: φ (upper face), φ/2 (chin, mouth)
+    chin_start: float = 0.8           # stage 2 starts once this share of the chin is valid (paper)
+    mouth_stop: float = 0.6           # the fit stops once this share of the mouth is valid (paper)
+    max_rounds: int = 50              # ICP rounds (nearest-vertex ICP creeps; settles by ~50)
+    max_stage_rounds: int = 8         # a stage also ends after this many rounds
+    alpha_tol: float = 1e-3           # max |Δα| that counts as converged
+    max_distance: float = 10.0        # matches farther than this are dropped (inf = the paper)
+    reject_boundary: bool = True      # scan boundary vertices are never matches
+    lip_rim_rings: int = 1            # no data on the inner lip rim + this many rings (-1 = keep)
+    weights: str = "uniform"          # "uniform" or "paper" (the two-stage region schedule)
+    solver: str = "newton"            # "newton" (projected, active set) or "lbfgsb" (scipy)
+    point_to_point: float = 0.3       # λ: energy Σ ω [(1 − λ) ρ_plane² + λ ‖q − p‖²] (0 = the paper)
+    refine_affine: bool = False       # re-solve T_A by least squares after each α solve
+    landmark_weight: float = 1.0      # landmarks' weight in that re-solve (× total data weight)
+    alpha_prior: float = 1.0          # μ of the ridge μ W ‖α‖² keeping unused blendshapes at 0
+    identity_prior: float = 15.0      # μ_id of the identity prior μ_id ‖β‖² (mm²; modes are 1 σ)
+    identity_prior_start: float = 1e4  # annealed from here (a stiff start lets pose and expression settle)
+    sample_stride: int = 1            # every n-th template vertex carries data
+    refine_rigid: bool = True         # 6 more unknowns: a small rigid motion re-solved each round
     # A round's step is halved when it is not smaller than the last one and ("reversal") points
     # back against it: an oscillation; "growth" halves any step not smaller than the last, which
     # also brakes the slow creep of ICP along one direction. When consecutive steps agree (cosine
     # > 0.9) the step is stretched by ``overrelax``.
     damping: str = "reversal"
     overrelax: float = 1.5
-    identity_prior_decay: float = 0.5
+    identity_prior_decay: float = 0.5  # the identity prior's factor per round
 
 
 def box_qp(h, g, x0, lo=0.0, hi=1.0, max_iter=100) -> np.ndarray:
@@ -310,22 +305,8 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
     beta0 : optional (M,) starting identity weights (default zeros: the basis mean).
     round_offset : rounds already done (continuing an earlier fit): the identity prior's
         annealing resumes where it was.
-    options : ExpressionOptions (default ``ExpressionOptions()``); ``**overrides`` change its
-        fields. Their meaning: phi_deg (normal test), chin_start / mouth_stop (the paper's stage
-        shares), max_rounds, max_stage_rounds (a stage ends after this many rounds even if its
-        valid share is not reached), alpha_tol (max |Δα| to stop), max_distance (mm; inf = the
-        paper), reject_boundary, lip_rim_rings (-1 = keep the rim), weights ("paper"|"uniform"),
-        refine_affine (False: T_A stays the landmark alignment, the paper; True: after each α
-        solve, T_A is re-solved by linear least squares on the same point-to-plane matches plus
-        the landmarks, weight ``landmark_weight`` x the total data weight spread over them),
-        alpha_prior (μ ≥ 0: adds μ W ‖α‖², W the total data weight; 0 = the paper),
-        solver ("newton"|"lbfgsb"), point_to_point (λ in [0, 1): the energy becomes
-        Σ ω_r [(1 − λ) ρ_plane² + λ ‖q_r − p_r‖²]; 0 = the paper), identity_prior (μ_id, mm²),
-        identity_prior_start (None or a larger μ_id to start from), identity_prior_decay (factor
-        per round down to identity_prior), refine_rigid (6 more unknowns, a small rotation about
-        the centroid and a translation, linearised and re-solved each round), sample_stride (1:
-        every template vertex carries data; n: every n-th), damping ("reversal" | "growth") and
-        overrelax (≥ 1).
+    options : ExpressionOptions (default ``ExpressionOptions()``, each field documented there);
+        ``**overrides`` change its fields.
 
     Returns
     -------

@@ -27,26 +27,26 @@ class ShapeFitOptions:
     """Settings of :func:`fit_shape` (the paper's weights and halving schedule; lengths in mm,
     angles in degrees). The Rust binding receives every field; it has no defaults of its own."""
 
-    w_data: float = 1.0
-    w_smooth: float = 20000.0
-    w_rigid: float = 10.0
-    relax_factor: float = 0.5
-    n_levels: int = 8
-    max_icp: int = 5
-    relax_tol: float = 1e-2
-    max_iter: int = 1000
-    rel_tol: float = 1e-3
-    memory: int = 5
-    normal_angle_deg: float = 80.0
+    w_data: float = 1.0             # ω_data
+    w_smooth: float = 20000.0       # ω_smooth at the first level
+    w_rigid: float = 10.0           # ω_rigid at the first level
+    relax_factor: float = 0.5       # both multiplied by this from one level to the next
+    n_levels: int = 8               # weight levels (the paper: 12)
+    max_icp: int = 5                # closest-point updates per level
+    relax_tol: float = 1e-2         # relative energy change below which a level ends ("negligible")
+    max_iter: int = 1000            # L-BFGS iterations per solve
+    rel_tol: float = 1e-3           # relative change that ends a solve (the paper: 1e-4)
+    memory: int = 5                 # L-BFGS correction pairs (the paper: 10)
+    normal_angle_deg: float = 80.0  # a match whose normals differ more is invalid
     # Matches farther than this (mm) are dropped (the paper: none, inf). The template's nostril
     # rims have no counterpart on a scan (nostrils are holes), and without a cap they were pulled
     # onto the skin around, bending the nose; some of them flipped between two surfaces every ICP
     # update (hundreds of wasted L-BFGS iterations). The MHD rises a little: those vertices stay
     # where the smoothness puts them, inside the holes, instead of on the nearest skin.
     max_distance: float = 5.0
-    reject_boundary: bool = True
-    w_landmark: float = 0.0
-    precondition: bool = True
+    reject_boundary: bool = True    # scan boundary vertices are never matches (hair, ears, holes' rims)
+    w_landmark: float = 0.0         # ω of the landmark term (the paper: none)
+    precondition: bool = True       # diagonal preconditioner of the L-BFGS
 
 
 @dataclass
