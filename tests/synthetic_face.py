@@ -16,6 +16,17 @@ from facecorr.template import ICT_MODEL_PATH, load_template
 _MODEL = None
 
 
+def subdivide(v, f):
+    """(vertices, faces) with every triangle split in 4 at its edge midpoints (appended after ``v``)."""
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    ue, inv = np.unique(e, axis=0, return_inverse=True)
+    mid = len(v) + np.arange(len(ue))
+    vv = np.vstack([v, 0.5 * (v[ue[:, 0]] + v[ue[:, 1]])])
+    m01, m12, m20 = (mid[inv[i * len(f):(i + 1) * len(f)]] for i in range(3))
+    a, b, c = f.T
+    return vv, np.concatenate([np.stack(x, 1) for x in ((a, m01, m20), (m01, b, m12), (m20, m12, c), (m01, m12, m20))])
+
+
 def _model():
     global _MODEL
     if _MODEL is None:
@@ -42,13 +53,7 @@ def make_scan(seed=0, expression=None, identity_sigma=1.0, noise=0.1, rotate=Tru
     tri = m["triangles"].astype(np.int64)
     tri = tri[use[tri].all(axis=1)]
     # split every triangle in 4 (edge midpoints) and jitter: new, denser connectivity
-    e = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
-    ue, inv = np.unique(e, axis=0, return_inverse=True)
-    mid = len(v) + np.arange(len(ue))
-    vv = np.vstack([v, 0.5 * (v[ue[:, 0]] + v[ue[:, 1]])])
-    m01, m12, m20 = (mid[inv[i * len(tri):(i + 1) * len(tri)]] for i in range(3))
-    a, b, c = tri.T
-    faces = np.concatenate([np.stack(x, 1) for x in ((a, m01, m20), (m01, b, m12), (m20, m12, c), (m01, m12, m20))])
+    vv, faces = subdivide(v, tri)
     used = np.unique(faces)
     remap = -np.ones(len(vv), np.int64)
     remap[used] = np.arange(len(used))

@@ -12,12 +12,7 @@ from hypothesis.extra.numpy import arrays
 from facecorr.evaluation import metrics as evaluate
 from facecorr import names
 from facecorr.errors import FacecorrError
-from facecorr.template import ICT_MODEL_PATH, load_template
-
-
-@pytest.fixture(scope="module")
-def t():
-    return load_template()
+from facecorr.template import ICT_MODEL_PATH
 
 
 @pytest.fixture(scope="module")

@@ -90,7 +90,7 @@ def test_reconstruct_template_from_dense_ground_truth():
 
 
 def _posed(tpl, alpha, beta, basis, rng):
-    from test_registration import _subdivided
+    from synthetic_face import subdivide as _subdivided
 
     v = tpl.expression(alpha) + basis.mean + np.tensordot(beta, basis.modes, axes=1)
     v, f = _subdivided(v, np.asarray(tpl.faces))

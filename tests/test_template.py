@@ -17,11 +17,6 @@ from facecorr.template import (
 
 
 @pytest.fixture(scope="module")
-def t():
-    return load_template()
-
-
-@pytest.fixture(scope="module")
 def ict():
     with np.load(ICT_MODEL_PATH) as d:
         return {k: d[k] for k in ("neutral", "triangles", "part_id", "part_names", "landmarks68",

@@ -112,11 +112,10 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     ``method``: a key of :data:`METHODS` ("default", or "paper" for the paper's start + BP).
     ``png``: also write ``landmarks.png`` (:func:`plot_landmarks` of the first 4 and the 4 worst scans).
     """
-    from ..io.atomic import write_json, write_text
     from ..landmarks.model import load_model
     from ..render import plot_landmarks
     from ..template import load_template
-    from .runner import run_on_eval_scans
+    from .runner import run_on_eval_scans, write_report
 
     load_model(model)  # validate once, up front: a bad model is the user's error, not 350 failures
     if method not in METHODS:
@@ -126,12 +125,8 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     table = landmark_table(rows)
     md = markdown(table, rows)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    write_text(out / "landmarks_table.md", md)
-    write_text(out / "landmarks_table.csv", "landmark,mean_mm,std_mm,max_mm,T10,T20,T30,n\n" + "".join(
-        f"{t['landmark']},{t['mean']:.3f},{t['std']:.3f},{t['max']:.3f},{t['T10']:.2f},{t['T20']:.2f},{t['T30']:.2f},{t['n']}\n"
-        for t in table))
-    write_json(out / "landmarks_per_scan.json", rows)
+    write_report(out, "landmarks", md, table, "landmark,mean_mm,std_mm,max_mm,T10,T20,T30,n",
+                 "{landmark},{mean:.3f},{std:.3f},{max:.3f},{T10:.2f},{T20:.2f},{T30:.2f},{n}", rows)
     ok = [r for r in rows if r["ok"]]
     if png and ok:
         worst = sorted(ok[4:], key=lambda r: -max(r["errors"].values()))[:4]

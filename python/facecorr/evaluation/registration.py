@@ -47,7 +47,7 @@ def _eval_one(job):
 
 def write_reports(rows, out_dir: Path) -> str:
     """Write the Markdown/CSV tables, the per-scan JSON and the cumulative PNG; return the Markdown."""
-    from ..io.atomic import write_json, write_text
+    from .runner import write_report
     from ..render import plot_cumulative
     from .metrics import format_region_table, summarize_regions
 
@@ -61,12 +61,8 @@ def write_reports(rows, out_dir: Path) -> str:
               f"dense correspondence error (mean over scans of the per-scan mean): {dense.mean():.3f} mm; "
               f"median seconds per scan: {np.median(secs):.2f}; scans: {len(ok)} ok, {len(rows) - len(ok)} failed."]
     md = "\n".join(lines) + "\n"
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_text(out_dir / "registration_table.md", md)
-    write_text(out_dir / "registration_table.csv", "region,mean,std,max,T10,T20,T30,n_scans\n" + "".join(
-        f"{t['region']},{t['mean']:.4f},{t['std']:.4f},{t['max']:.4f},{t['T10']:.2f},{t['T20']:.2f},{t['T30']:.2f},{t['n_scans']}\n"
-        for t in table))
-    write_json(out_dir / "registration_per_scan.json", rows)
+    write_report(out_dir, "registration", md, table, "region,mean,std,max,T10,T20,T30,n_scans",
+                 "{region},{mean:.4f},{std:.4f},{max:.4f},{T10:.2f},{T20:.2f},{T30:.2f},{n_scans}", rows)
     if ok:  # Fig. 10: cumulative share of scans whose every evaluation point is under the threshold
         worst = np.array([max(np.nanmax(np.asarray(v, float)) for v in r["regions"].values()) for r in ok])
         plot_cumulative(worst, out_dir / "cumulative.png")

@@ -4,10 +4,25 @@ a progress bar."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 
 def select_eval_records(records, split="test", level=4):
     """The paper's evaluation subset: the split's neutral scans and 6 expressions at ``level``."""
     return [r for r in records if r["split"] == split and (r["expression"] == "NE" or r["level"] == level)]
+
+
+def write_report(out_dir, stem: str, markdown: str, table: list, columns: str, row_format: str, rows: list) -> None:
+    """Write ``<stem>_table.md`` (``markdown``), ``<stem>_table.csv`` (header ``columns``, one
+    ``row_format.format(**t)`` line per table row ``t``) and ``<stem>_per_scan.json`` (``rows``)
+    into ``out_dir`` (created), each atomically."""
+    from ..io.atomic import write_json, write_text
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text(out / f"{stem}_table.md", markdown)
+    write_text(out / f"{stem}_table.csv", columns + "\n" + "".join(row_format.format(**t) + "\n" for t in table))
+    write_json(out / f"{stem}_per_scan.json", rows)
 
 
 def run_on_eval_scans(db_dir, worker, make_job, *, workers=2, limit=None, split="test", desc="evaluating",
