@@ -9,7 +9,7 @@ from hypothesis import given, settings, strategies as st
 from scipy.optimize import minimize
 
 sys.path.insert(0, str(Path(__file__).parent))
-from synthetic_face import make_scan  # noqa: E402
+from synthetic_face import make_scan, subdivide  # noqa: E402
 
 from facecorr.errors import RegistrationError
 from facecorr.geometry.mesh import Mesh
@@ -35,16 +35,6 @@ def test_box_qp_matches_scipy_lbfgsb(seed):
     assert np.all((ours >= 0) & (ours <= 1))
 
 
-def _subdivided(v, f):
-    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    ue, inv = np.unique(e, axis=0, return_inverse=True)
-    mid = len(v) + np.arange(len(ue))
-    vv = np.vstack([v, 0.5 * (v[ue[:, 0]] + v[ue[:, 1]])])
-    m01, m12, m20 = (mid[inv[i * len(f):(i + 1) * len(f)]] for i in range(3))
-    a, b, c = f.T
-    return vv, np.concatenate([np.stack(x, 1) for x in ((a, m01, m20), (m01, b, m12), (m20, m12, c), (m01, m12, m20))])
-
-
 @pytest.mark.parametrize("solver", ["newton", "lbfgsb"])
 def test_expression_weights_are_recovered(solver):
     """Scan = the template's own expression P(α_true) (subdivided, rotated): α_true comes back."""
@@ -56,7 +46,7 @@ def test_expression_weights_are_recovered(solver):
     alpha[names.index("mouthSmile_L")] = 0.7
     alpha[names.index("mouthSmile_R")] = 0.6
     alpha[names.index("browInnerUp")] = 0.5
-    v, f = _subdivided(tpl.expression(alpha), np.asarray(tpl.faces))
+    v, f = subdivide(tpl.expression(alpha), np.asarray(tpl.faces))
     q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
     r = q * np.sign(np.linalg.det(q))
     t = np.array([20.0, -40.0, 300.0])
@@ -161,6 +151,8 @@ def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch):
     def fake_predict(mesh_, model=None, options=None):
         calls.append(options)
         pos = lms if options == wider else _turned_about_the_nose(lms, 35.0)
+        shift = mesh_.vertices[0] - mesh.vertices[0]  # correspond predicts on the scan centred on the origin
+        pos = {k: np.asarray(v) + shift for k, v in pos.items()}
         return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[],
                               timings_s={"total": 0.0})
 

@@ -49,9 +49,14 @@ class Mesh:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        v = np.ascontiguousarray(self.vertices, dtype=np.float64)
-        f = np.ascontiguousarray(self.faces, dtype=np.int64)
         name = self.source or "mesh"
+        f = np.asarray(self.faces)
+        if f.dtype.kind not in "iu":
+            if f.dtype.kind != "f" or not np.all(np.isfinite(f)) or not np.array_equal(f, np.round(f)):
+                raise MeshError(f"{name}: face indices must be integers, got {f.dtype} values such as "
+                                f"{f.ravel()[:3].tolist()}")
+        v = np.ascontiguousarray(self.vertices, dtype=np.float64)
+        f = np.ascontiguousarray(f, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3:
             raise MeshError(f"{name}: vertices must have shape (N, 3), got {v.shape}")
         if f.ndim != 2 or f.shape[1] != 3:
@@ -123,6 +128,38 @@ class Mesh:
     def n_components(self) -> int:
         """Number of connected components (isolated vertices count)."""
         return int(self.components.max()) + 1
+
+    @cached_property
+    def signed_volume(self) -> float:
+        """Σ over triangles of (a · (b × c)) / 6, mm³: the volume enclosed with the origin, positive
+        when the triangles are wound so that their normals point away from it."""
+        a, b, c = (self.vertices[self.faces[:, k]] for k in range(3))
+        return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
+
+    def centred_outward(self) -> tuple["Mesh", np.ndarray]:
+        """(mesh, offset): this mesh moved so that its bounding box is centred on the origin, with
+        its triangles wound so that the normals point outward (away from the head), and the (3,)
+        offset (mm) to add back to positions found on it.
+
+        Where a scan sits must not change an answer, and far from the origin float64 loses the
+        precision the fits need. Scanners and converters often write inward-facing triangles,
+        which would turn every normal test of the fits around: a face scan is a cap curved about
+        the head's centre, so its outward winding is the one whose cone volume about its centre
+        (:attr:`signed_volume` after centring) is positive. A mesh already centred and outward is
+        returned itself (its caches are kept).
+        """
+        lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+        offset = 0.5 * (lo + hi)
+        if np.abs(offset).max() <= 1e-9 * max(1.0, float(np.abs(hi - lo).max())):
+            offset = np.zeros(3)
+            moved = self
+        else:
+            moved = Mesh(self.vertices - offset, self.faces, to_mm=self.to_mm, units=self.units, source=self.source,
+                         meta=dict(self.meta))
+        if moved.signed_volume < 0:
+            moved = Mesh(moved.vertices, moved.faces[:, [0, 2, 1]], to_mm=self.to_mm, units=self.units,
+                         source=self.source, meta={**self.meta, "rewound": True})
+        return moved, offset
 
     def submesh(self, vertex_mask: np.ndarray) -> tuple[Mesh, np.ndarray]:
         """The part of the mesh on the selected vertices.

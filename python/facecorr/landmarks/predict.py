@@ -137,6 +137,17 @@ class LandmarkResult:
         """(8, 3) positions in LANDMARK_NAMES order, mm."""
         return np.array([self.positions[n] for n in LANDMARK_NAMES])
 
+    def moved(self, offset) -> "LandmarkResult":
+        """This result with the positions (and the debug pose) translated by ``offset`` (3,) mm."""
+        offset = np.asarray(offset, dtype=np.float64)
+        if not offset.any():
+            return self
+        debug = dict(self.debug)
+        if "pose" in debug:
+            r, t = debug["pose"]
+            debug["pose"] = (r, np.asarray(t) + offset)
+        return replace(self, positions={k: np.asarray(v) + offset for k, v in self.positions.items()}, debug=debug)
+
 
 class _Timer:
     def __init__(self):
@@ -178,15 +189,15 @@ def predict_landmarks(mesh, model=None, options: PredictOptions | None = None, *
     opts = resolve(options, PredictOptions, overrides, "predict_landmarks")
     if not isinstance(model, LandmarkModel):
         model = load_model(model)
-    first = _predict_once(mesh, model, opts)
-    if not (opts.retry and _failed(first)):
-        return first
-    second = _predict_once(mesh, model, opts.wider())
-    best = second if not _failed(second) else first
-    best.flags = list(dict.fromkeys(best.flags + ["retried_wider_search"]))
-    best.timings_s = {k: first.timings_s.get(k, 0.0) + second.timings_s.get(k, 0.0)
-                      for k in set(first.timings_s) | set(second.timings_s)}
-    return best
+    work, offset = mesh.centred_outward()
+    best = first = _predict_once(work, model, opts)
+    if opts.retry and _failed(first):
+        second = _predict_once(work, model, opts.wider())
+        best = second if not _failed(second) else first
+        best.flags = list(dict.fromkeys(best.flags + ["retried_wider_search"]))
+        best.timings_s = {k: first.timings_s.get(k, 0.0) + second.timings_s.get(k, 0.0)
+                          for k in set(first.timings_s) | set(second.timings_s)}
+    return best.moved(offset)
 
 
 def _predict_once(mesh, model, opts: PredictOptions) -> "LandmarkResult":

@@ -32,6 +32,8 @@ class Result:
     confidence : dict name -> float in [0, 1] (1 for landmarks given by the user).
     expression_weights : dict blendshape name -> fitted weight in [0, 1].
     mhd : float, modified Hausdorff distance template -> scan, mm.
+    coverage : float in [0, 1], the share of the registered template's vertices with scan under
+        them (nearest scan vertex within ``CorrespondOptions.coverage_distance`` mm).
     timings_s : dict stage -> seconds.
     flags : list of str, warnings (low-confidence landmarks, ...).
     to_mm, units : the scan's units (results are written back in them).
@@ -46,6 +48,7 @@ class Result:
     mhd: float
     timings_s: dict
     flags: list = field(default_factory=list)
+    coverage: float = 1.0
     to_mm: float = 1.0
     units: str = "mm"
 
@@ -59,6 +62,7 @@ class Result:
             "confidence": {k: float(v) for k, v in self.confidence.items()},
             "expression_weights": {k: float(v) for k, v in self.expression_weights.items()},
             "mhd": float(self.mhd) * s,
+            "coverage": round(float(self.coverage), 4),
             "timings_s": {k: round(float(v), 4) for k, v in self.timings_s.items()},
             "flags": list(self.flags),
         }
@@ -90,6 +94,16 @@ class CorrespondOptions:
     register: RegisterOptions = field(default_factory=RegisterOptions)
     predicted_landmark_weight: float = 0.0
     refit_on_implausible: bool = True
+    # Given landmarks farther than this from every scan vertex (mm) are refused: they are in
+    # another frame or unit, and the registration would land beside the scan.
+    max_landmark_distance: float = 10.0
+    # A registered vertex with a scan vertex within this distance (mm) counts as covered; the
+    # registered landmarks farther than ``off_surface_distance`` are flagged by name.
+    coverage_distance: float = 3.0
+    off_surface_distance: float = 5.0
+    # A result whose coverage is below this is flagged (a half face, a large hole); correct
+    # registrations of cropped scans cover ~0.8 (the template reaches past a scan's border).
+    min_coverage: float = 0.6
 
 
 def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, template=None,
@@ -118,33 +132,29 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
     timings = {}
     flags = []
     t0 = time.perf_counter()
+    work, offset = mesh.centred_outward()  # where the scan sits, and its winding, must not change the answer
     if landmarks is None:
-        pred = predict_landmarks(mesh, model=model, options=opts.predict)
+        pred = predict_landmarks(work, model=model, options=opts.predict)
         positions = {k: np.asarray(v, float) for k, v in pred.positions.items()}
         confidence = dict(pred.confidence)
         flags += list(pred.flags)
         timings.update({f"landmarks.{k}": v for k, v in pred.timings_s.items()})
     else:
-        missing = [n for n in LANDMARK_NAMES if n not in landmarks]
-        if missing:
-            from ..errors import LandmarkError
-
-            raise LandmarkError(f"landmarks given without {', '.join(missing)}")
-        positions = {n: np.asarray(landmarks[n], float) for n in LANDMARK_NAMES}
+        positions = _given_landmarks(landmarks, work, offset, opts.max_landmark_distance)
         confidence = {n: 1.0 for n in LANDMARK_NAMES}
     timings["landmarks"] = time.perf_counter() - t0
     reg_opts = opts.register
     if landmarks is None:
         reg_opts = replace(reg_opts, shape=replace(reg_opts.shape, w_landmark=opts.predicted_landmark_weight))
-    reg = register(mesh, positions, template=template, options=reg_opts)
+    reg = register(work, positions, template=template, options=reg_opts)
     doubts = reg.implausible()
     if doubts and landmarks is None and opts.refit_on_implausible and "retried_wider_search" not in flags:
         # Landmarks in a wrong pose show as a fit the model cannot explain: predict again with
         # the wider start search and keep the better-explained fit.
         t1 = time.perf_counter()
-        pred2 = predict_landmarks(mesh, model=model, options=opts.predict.wider())
+        pred2 = predict_landmarks(work, model=model, options=opts.predict.wider())
         pos2 = {k: np.asarray(v, float) for k, v in pred2.positions.items()}
-        reg2 = register(mesh, pos2, template=template, options=reg_opts)
+        reg2 = register(work, pos2, template=template, options=reg_opts)
         timings["refit"] = time.perf_counter() - t1
         if reg2.details.get("fit_rms_mm", np.inf) < reg.details.get("fit_rms_mm", np.inf):
             reg, positions, confidence = reg2, pos2, dict(pred2.confidence)
@@ -152,18 +162,55 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
             doubts = reg.implausible()
         flags.append("refit_wider_search_after_implausible_fit")
     flags += [f"implausible_fit:{d}" for d in doubts]
+    ids = np.asarray(template.landmark_ids)
+    for name, d in zip(LANDMARK_NAMES, reg.scan_distance[ids]):
+        if d > opts.off_surface_distance:
+            flags.append(f"landmark_off_surface:{name} ({d:.1f} mm from the scan)")
+    coverage = float(np.mean(reg.scan_distance <= opts.coverage_distance))
+    if coverage < opts.min_coverage:
+        flags.append(f"low_coverage:{100 * coverage:.0f}% of the template has scan under it")
     timings.update({f"registration.{k}": v for k, v in reg.timings_s.items()})
     timings["total"] = time.perf_counter() - t0
     return Result(
-        vertices=reg.vertices,
+        vertices=reg.vertices + offset,
         faces=np.asarray(template.faces, dtype=np.int64),
-        landmarks=positions,
-        landmarks_registered=dict(reg.landmarks_registered),
+        landmarks={k: np.asarray(v) + offset for k, v in positions.items()},
+        landmarks_registered={k: np.asarray(v) + offset for k, v in reg.landmarks_registered.items()},
         confidence=confidence,
         expression_weights={str(n): float(a) for n, a in zip(template.blendshape_names, reg.alpha)},
         mhd=float(reg.mhd),
         timings_s=timings,
         flags=flags,
+        coverage=coverage,
         to_mm=mesh.to_mm,
         units=mesh.units,
     )
+
+
+def _given_landmarks(landmarks, work: Mesh, offset, max_distance: float) -> dict:
+    """The user's 8 landmarks (scan frame, mm) as name -> (3,) float64 in the frame of ``work`` (the
+    scan moved by -``offset``), checked: all present, 3 finite numbers each, and on the scan (within
+    ``max_distance`` mm of a vertex). Raises LandmarkError."""
+    from ..errors import LandmarkError
+
+    if not isinstance(landmarks, dict):
+        raise LandmarkError(f"landmarks must be a dict name -> [x, y, z], got {type(landmarks).__name__}")
+    missing = [n for n in LANDMARK_NAMES if n not in landmarks]
+    if missing:
+        raise LandmarkError(f"landmarks given without {', '.join(missing)}")
+    out = {}
+    for n in LANDMARK_NAMES:
+        try:
+            p = np.asarray(landmarks[n], dtype=np.float64)
+        except (TypeError, ValueError):
+            p = np.zeros(0)
+        if p.shape != (3,) or not np.isfinite(p).all():
+            raise LandmarkError(f"landmark {n} must be 3 finite numbers [x, y, z], got {landmarks[n]!r}")
+        out[n] = p - offset
+    d, _ = work.kdtree.query(np.array([out[n] for n in LANDMARK_NAMES]))
+    far = [(n, float(x)) for n, x in zip(LANDMARK_NAMES, np.asarray(d)) if x > max_distance]
+    if far:
+        worst = max(far, key=lambda f: f[1])
+        raise LandmarkError(f"{len(far)} of the 8 landmarks are not on the scan ({worst[0]} is {worst[1]:.0f} mm from "
+                            f"it, more than {max_distance:g} mm): are they in the scan's frame and units?")
+    return out

@@ -17,7 +17,6 @@ from threadpoolctl import threadpool_limits
 
 from ..errors import RegistrationError
 from ..geometry.mesh import Mesh
-from ..geometry.spatial import mhd
 from ..options import resolve
 from ..names import LANDMARK_NAMES
 from .alignment import ALIGN_MODES, align_landmarks, apply_transform
@@ -41,6 +40,7 @@ class RegistrationResult:
         "total").
     transform : (3, 4) the landmark alignment T_A (template frame -> scan frame).
     expression_vertices : (N, 3) P(α) after the expression fit, scan frame.
+    scan_distance : (N,) distance of each registered vertex to its nearest scan vertex, mm.
     details : dict with the per-round / per-solve logs of the stages.
     """
 
@@ -51,6 +51,7 @@ class RegistrationResult:
     timings_s: dict
     transform: np.ndarray | None = None
     expression_vertices: np.ndarray | None = None
+    scan_distance: np.ndarray | None = None
     details: dict = field(default_factory=dict)
 
     def implausible(self) -> list:
@@ -61,9 +62,12 @@ class RegistrationResult:
         makes χ²-distributed with M degrees of freedom for faces like the training faces. Landmarks
         that put the template in a wrong pose force both up (33 bu3dfe test scans: RMS 0.46-0.78
         mm and ‖β‖² 14-46 for M = 40; the one scan whose predicted eye corners were 30-50 mm off:
-        2.5 mm and 536).
+        2.5 mm and 536). And the MHD: a registration off the scan (landmarks in another frame)
+        is far from it whatever the fit says.
         """
         out = []
+        if self.mhd > IMPLAUSIBLE_MHD_MM:
+            out.append(f"mhd_{self.mhd:.1f}mm")
         rms = self.details.get("fit_rms_mm")
         if rms is not None and rms > IMPLAUSIBLE_RMS_MM:
             out.append(f"fit_rms_{rms:.1f}mm")
@@ -78,6 +82,9 @@ class RegistrationResult:
 
 #: Thresholds of :meth:`RegistrationResult.implausible`.
 IMPLAUSIBLE_RMS_MM = 1.5
+#: A correct registration sits on the scan: its MHD is ~1 mm (a cropped border and holes included),
+#: one in the wrong place or pose is several mm off.
+IMPLAUSIBLE_MHD_MM = 5.0
 IMPLAUSIBLE_IDENTITY_P = 1e-6
 
 
@@ -273,7 +280,8 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
         raise RegistrationError("the shape fit diverged (non-finite vertices)")
 
     t0 = time.perf_counter()
-    mhd_value = mhd(vertices, mesh.vertices, tree=mesh.kdtree)
+    scan_distance = np.asarray(mesh.kdtree.query(vertices)[0], dtype=np.float64)
+    mhd_value = float(scan_distance.mean())  # the paper's MHD (geometry.spatial.mhd), from the same query
     timings["mhd"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     return RegistrationResult(
@@ -284,5 +292,6 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
         timings_s=timings,
         transform=transform,
         expression_vertices=expr.vertices,
+        scan_distance=scan_distance,
         details=details,
     )
