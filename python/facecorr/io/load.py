@@ -1,9 +1,12 @@
 """Loading face scans: format dispatch, validation/cleaning and unit inference.
 
-* OBJ, PLY, STL, OFF, GLB are read through trimesh with ``process=False`` (and ``maintain_order``
-  for OBJ), so the file's vertex order is kept; every trimesh failure is translated into a
-  one-line :class:`~facecorr.errors.MeshFileError`. Broken binary STL and truncated OFF files,
-  which trimesh reads silently, are checked first.
+* OBJ and OFF are read by our own readers (:func:`_read_obj`, :func:`_read_off`: file order kept,
+  OBJ relative indices, CRLF, a UTF-8 BOM and non-UTF-8 bytes in comments handled, non-integer
+  face indices refused).
+* PLY, STL, GLB are read through trimesh with ``process=False``, so the file's vertex order is
+  kept; every trimesh failure is translated into a one-line :class:`~facecorr.errors.MeshFileError`.
+  Broken binary STL files, which trimesh reads silently, are checked first.
+* Files that are really gzip/zip/PNG/JPEG/... (a misnamed download) are refused by name.
 * VRML 2.0 (``.wrl``/``.vrml``, e.g. BU-3DFE) is read by :func:`facecorr.io.vrml.read_wrl`.
 
 Validation on load (:func:`load_mesh`), in this order, with the counts in ``mesh.meta``:
@@ -24,6 +27,7 @@ Validation on load (:func:`load_mesh`), in this order, with the counts in ``mesh
 
 from __future__ import annotations
 
+import re
 import warnings
 from pathlib import Path
 
@@ -114,8 +118,6 @@ def _read_trimesh(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
 
     if fmt == "stl":
         _check_binary_stl(path)
-    elif fmt == "off":
-        _check_off(path)
     try:
         with warnings.catch_warnings():  # trimesh warns about textures/colours we ignore
             warnings.simplefilter("ignore")
@@ -156,18 +158,174 @@ def _check_binary_stl(path: Path) -> None:
                             f"file has {size})")
 
 
-def _check_off(path: Path) -> None:
-    """OFF: the vertex and face counts of the header must be present, face indices in range
-    (trimesh silently reads a truncated face list)."""
+# Binary signatures of files that are often misnamed (a compressed download, an image, an archive).
+_SIGNATURES = (
+    (b"\x1f\x8b", "gzip-compressed data (decompress it first)"),
+    (b"PK\x03\x04", "a ZIP archive (extract it first)"),
+    (b"BZh", "bzip2-compressed data (decompress it first)"),
+    (b"\xfd7zXZ\x00", "xz-compressed data (decompress it first)"),
+    (b"7z\xbc\xaf\x27\x1c", "a 7-Zip archive (extract it first)"),
+    (b"\x28\xb5\x2f\xfd", "zstd-compressed data (decompress it first)"),
+    (b"\x89PNG\r\n\x1a\n", "a PNG image"),
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"GIF8", "a GIF image"),
+    (b"BM", None),  # BMP: only with a plausible header (checked below); "BM" may start text
+    (b"%PDF", "a PDF document"),
+)
+
+
+def _a(fmt: str) -> str:
+    """'an OBJ', 'a PLY': the format name with its article."""
+    return f"{'an' if fmt.upper()[0] in 'AEFHILMNORSX' else 'a'} {fmt.upper()}"
+
+
+def _sniff(path: Path, fmt: str) -> None:
+    """MeshFileError if the file starts with the signature of a well-known non-mesh format."""
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    for magic, what in _SIGNATURES:
+        if head.startswith(magic):
+            if what is None:  # BMP: 'BM', then the file size (little-endian) in bytes 2-6
+                if len(head) < 6 or int.from_bytes(head[2:6], "little") != path.stat().st_size:
+                    continue
+                what = "a BMP image"
+            raise MeshFileError(f"{path}: the file is {what}, not {_a(fmt)} mesh")
+
+
+def _read_text(path: Path, fmt: str) -> str:
+    """Text of an OBJ/OFF file: UTF-8 with undecodable bytes replaced (they can only matter in
+    comments and names, which are ignored), a leading BOM dropped; binary data -> MeshFileError."""
     try:
-        lines = [ln.split("#", 1)[0].split() for ln in path.read_text(errors="replace").splitlines()]
+        raw = path.read_bytes()
     except OSError as e:
         raise MeshFileError(f"{path}: cannot read: {e.strerror or e}") from None
-    lines = [ln for ln in lines if ln]
-    if not lines or not lines[0][0].upper().endswith("OFF"):
+    if b"\x00" in raw:
+        raise MeshFileError(f"{path}: binary data (NUL bytes) in a text {fmt.upper()} file: not "
+                            f"{_a(fmt)} file, or a broken one")
+    text = raw.decode("utf-8", errors="replace")
+    return text[1:] if text.startswith("\ufeff") else text
+
+
+# Largest vertex index accepted before the range check (keeps int64 arithmetic exact).
+_MAX_INDEX = 2**53
+
+
+def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Raw (V, F) of a Wavefront OBJ: ``v`` lines (first three numbers; w / colours ignored) and
+    ``f`` lines (``i``, ``i/t``, ``i//n``, ``i/t/n``; negative = relative to the vertices defined so
+    far, per the spec), polygons fan-triangulated, faces with < 3 vertices kept as degenerate
+    triangles (counted and dropped by :func:`_clean`). ``vt``/``vn``/groups/materials/lines/points
+    are ignored. Broken numbers -> MeshFileError naming the line; index 0 or a relative index before
+    the first vertex -> MeshError."""
+    text = _read_text(path, "obj")
+    if "\\" in text:  # line continuation: a backslash at the end of a line
+        text = re.sub(r"\\[ \t]*(?:\r\n|\r|\n)", " ", text)
+    lines = text.splitlines()
+    fast = _obj_fast(lines)
+    if fast is not None:
+        return fast
+    verts: list = []
+    tris: list = []
+    nv = 0
+    for n, line in enumerate(lines, 1):
+        s = line.lstrip()
+        if not s or s[0] not in "vf":
+            continue
+        parts = s.split("#", 1)[0].split() if "#" in s else s.split()
+        if not parts:
+            continue
+        key = parts[0]
+        if key == "v":
+            if len(parts) < 4:
+                raise MeshFileError(f"{path}: broken OBJ at line {n}: a vertex needs x y z, "
+                                    f"found {len(parts) - 1} numbers")
+            try:
+                verts.append((float(parts[1]), float(parts[2]), float(parts[3])))
+            except ValueError:
+                raise MeshFileError(f"{path}: broken OBJ at line {n}: not numbers: "
+                                    f"{' '.join(parts[1:4])[:60]!r}") from None
+            nv += 1
+        elif key == "f":
+            poly = []
+            for t in parts[1:]:
+                a = t.split("/", 1)[0]
+                try:
+                    i = int(a)
+                except ValueError:
+                    i = None
+                if i is None or "_" in a:
+                    raise MeshFileError(f"{path}: broken OBJ at line {n}: face vertex {t[:30]!r} is "
+                                        f"not an integer index")
+                if i > 0:
+                    if i > _MAX_INDEX:
+                        raise MeshError(f"{path}: line {n}: face vertex index {i} is out of range "
+                                        f"(the file has at most {_MAX_INDEX} vertices)")
+                    poly.append(i - 1)
+                elif i < 0:
+                    if -i > nv:
+                        raise MeshError(f"{path}: line {n}: relative face index {i} is out of range "
+                                        f"(only {nv} vertices defined before it)")
+                    poly.append(nv + i)
+                else:
+                    raise MeshError(f"{path}: line {n}: face vertex index 0 is out of range "
+                                    f"(OBJ indices start at 1)")
+            k = len(poly)
+            if k >= 3:
+                p0 = poly[0]
+                tris.extend((p0, poly[j], poly[j + 1]) for j in range(1, k - 1))
+            elif k:  # a short face: a degenerate triangle, counted and dropped
+                tris.append((poly[0], poly[-1], poly[-1]))
+    V = np.array(verts, np.float64).reshape(-1, 3)
+    F = np.array(tris, np.int64).reshape(-1, 3)
+    return V, F
+
+
+def _obj_fast(lines: list) -> tuple[np.ndarray, np.ndarray] | None:
+    """(V, F) of the common plain OBJ (``v x y z`` and ``f i j k`` with positive indices only) in
+    a few numpy calls; None if the file has anything else in its v/f lines (the general loop then
+    reads it and reports errors by line)."""
+    vl = [ln for ln in lines if ln[:2] == "v "]
+    fl = [ln for ln in lines if ln[:2] == "f "]
+    n_vf = sum(1 for ln in lines if ln.lstrip()[:1] in ("v", "f") and ln.lstrip()[:2] not in ("vt", "vn", "vp"))
+    if n_vf != len(vl) + len(fl):
+        return None
+    vtxt, ftxt = " ".join(vl), " ".join(fl)
+    if "#" in vtxt or any(c in ftxt for c in "#/-_+"):
+        return None
+    vt, ft = vtxt.split(), ftxt.split()
+    if len(vt) != 4 * len(vl) or len(ft) != 4 * len(fl):
+        return None
+    try:
+        V = np.array(vt, dtype=object).reshape(-1, 4)[:, 1:].astype(np.float64)
+        F = np.array(ft, dtype=object).reshape(-1, 4)[:, 1:].astype(np.int64) - 1
+    except (ValueError, OverflowError):
+        return None
+    if F.size and (F.min() < 0 or F.max() >= _MAX_INDEX):
+        return None
+    return V.reshape(-1, 3), F.reshape(-1, 3)
+
+
+_OFF_HEADERS = {"OFF", "COFF", "NOFF", "CNOFF", "STOFF", "STCOFF", "STNOFF", "STCNOFF"}
+
+
+def _read_off(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Raw (V, F) of an ASCII OFF file (header ``[ST][C][N]OFF``, counts ``nv nf ne``, then one
+    vertex and one face per line, ``#`` comments and blank lines skipped). Extra values on a line
+    (normals, colours) are ignored; polygons are fan-triangulated. Missing counts, a truncated file,
+    non-integer face indices -> MeshFileError; indices out of range -> MeshError."""
+    text = _read_text(path, "off")
+    lines = [(n, ln.split("#", 1)[0].split()) for n, ln in enumerate(text.splitlines(), 1)]
+    lines = [x for x in lines if x[1]]
+    if not lines or not lines[0][1][0].upper().endswith("OFF"):
         raise MeshFileError(f"{path}: broken OFF file (no 'OFF' header)")
-    head = lines[0][1:] or (lines[1] if len(lines) > 1 else [])
-    body = lines[1:] if lines[0][1:] else lines[2:]
+    kw = lines[0][1][0].upper()
+    if kw not in _OFF_HEADERS:
+        raise MeshFileError(f"{path}: unsupported OFF variant {lines[0][1][0][:20]!r} (only 3D "
+                            f"OFF/COFF/NOFF/STOFF)")
+    if len(lines[0][1]) > 1 and lines[0][1][1].upper() == "BINARY":
+        raise MeshFileError(f"{path}: binary OFF is not supported")
+    head = lines[0][1][1:] or (lines[1][1] if len(lines) > 1 else [])
+    body = lines[1:] if lines[0][1][1:] else lines[2:]
     try:
         nv, nf = int(head[0]), int(head[1])
     except (IndexError, ValueError):
@@ -175,16 +333,29 @@ def _check_off(path: Path) -> None:
     if nv < 0 or nf < 0 or len(body) < nv + nf:
         raise MeshFileError(f"{path}: broken OFF file (header says {nv} vertices and {nf} faces, "
                             f"found {len(body)} lines): truncated?")
-    for k, ln in enumerate(body[nv:nv + nf]):
+    V = np.empty((nv, 3), np.float64)
+    for k, (n, ln) in enumerate(body[:nv]):
         try:
-            n = int(ln[0])
-            idx = [int(x) for x in ln[1:1 + n]]
+            V[k] = [float(x) for x in ln[:3]]
         except ValueError:
-            raise MeshFileError(f"{path}: broken OFF file (face {k} is not integers)") from None
-        if len(idx) < n:
-            raise MeshFileError(f"{path}: broken OFF file (face {k} has {len(idx)} of {n} indices)")
+            raise MeshFileError(f"{path}: broken OFF at line {n}: vertex {k} is not 3 numbers") from None
+    tris: list = []
+    for k, (n, ln) in enumerate(body[nv:nv + nf]):
+        try:
+            m = int(ln[0])
+            idx = [int(x) for x in ln[1:1 + m]]
+        except ValueError:
+            raise MeshFileError(f"{path}: broken OFF at line {n}: face {k} is not integers") from None
+        if m < 0 or len(idx) < m:
+            raise MeshFileError(f"{path}: broken OFF at line {n}: face {k} has {len(idx)} of "
+                                f"{m} indices")
         if idx and (min(idx) < 0 or max(idx) >= nv):
-            raise MeshError(f"{path}: face {k} has vertex indices {idx} outside [0, {nv - 1}]")
+            raise MeshError(f"{path}: face {k} has vertex indices {idx[:8]} outside [0, {nv - 1}]")
+        if m >= 3:
+            tris.extend((idx[0], idx[j], idx[j + 1]) for j in range(1, m - 1))
+        elif m:
+            tris.append((idx[0], idx[-1], idx[-1]))
+    return V, np.array(tris, np.int64).reshape(-1, 3)
 
 
 def _merge_duplicates(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -276,8 +447,14 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
         factor = unit_factor(units)
     fmt = format_of(path)
     _check_readable(path)
+    if fmt != "stl":  # a binary STL header is free text; its size check catches other files
+        _sniff(path, fmt)
     if fmt == "wrl":
         V, F = read_wrl(path)
+    elif fmt == "obj":
+        V, F = _read_obj(path)
+    elif fmt == "off":
+        V, F = _read_off(path)
     else:
         V, F = _read_trimesh(path, fmt)
     V, F, meta = _clean(V, F, str(path), merge_duplicates)
