@@ -592,3 +592,112 @@ def test_units_inferred_from_the_largest_piece(tmp_path):
     q = tmp_path / "debris_m.ply"
     io.save_mesh(q, (V2, F2), units="m")
     assert io.load_mesh(q).units == "m"
+
+
+# ----------------------------------------------------------------------------- careful-user inputs
+
+SQUARE_V = "v 0 0 0\nv 100 0 0\nv 0 100 0\nv 100 100 0\n"
+SQUARE_OBJ = SQUARE_V + "f 1 2 3\nf 2 4 3\n"
+SQUARE_OFF = "OFF\n4 2 0\n0 0 0\n100 0 0\n0 100 0\n100 100 0\n3 0 1 2\n3 1 3 2\n"
+SQUARE_PLY = ("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+              "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+              "0 0 0\n100 0 0\n0 100 0\n100 100 0\n3 0 1 2\n3 1 3 2\n")
+SQUARE_VERTS = [[0, 0, 0], [100, 0, 0], [0, 100, 0], [100, 100, 0]]
+SQUARE_FACES = [[0, 1, 2], [1, 3, 2]]
+
+
+def load_bytes(tmp_path, name, data, **kw):
+    p = tmp_path / name
+    p.write_bytes(data if isinstance(data, bytes) else data.encode())
+    return io.load_mesh(p, units="mm", **kw)
+
+
+def assert_square(m):
+    np.testing.assert_array_equal(m.vertices, SQUARE_VERTS)
+    np.testing.assert_array_equal(m.faces, SQUARE_FACES)
+
+
+def test_obj_relative_indices_load_like_absolute(tmp_path):
+    """OBJ spec: -1 is the last vertex defined so far (was read as a single face)."""
+    rel = "v 0 0 0\nv 100 0 0\nv 0 100 0\nf -3 -2 -1\nv 100 100 0\nf -3 -1 -2\n"
+    assert_square(load_bytes(tmp_path, "rel.obj", rel))
+    # with texture / normal indices, and mixed with absolute indices
+    rel_vt = ("v 0 0 0\nv 100 0 0\nv 0 100 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\n"
+              "f -3/-3/-1 -2/-2/-1 -1/-1/-1\nv 100 100 0\nf 2//1 -1//1 3//1\n")
+    assert_square(load_bytes(tmp_path, "relvt.obj", rel_vt))
+    with pytest.raises(MeshError, match="relative face index -4 is out of range") as e:
+        load_bytes(tmp_path, "relbad.obj", "v 0 0 0\nv 100 0 0\nv 0 100 0\nf -4 -2 -1\n")
+    one_line(e)
+
+
+def test_obj_texture_and_normal_indices(tmp_path):
+    obj = (SQUARE_V + "vt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\n"
+           "o part\ng grp\nusemtl skin\ns 1\nf 1/1/1 2/2/1 3/3/1\nf 2//1 4//1 3//1\nl 1 2\n")
+    assert_square(load_bytes(tmp_path, "vt.obj", obj))
+
+
+def test_obj_non_utf8_comment(tmp_path):
+    """Was 'ModuleNotFoundError: No module named charset_normalizer' (trimesh guessing the encoding)."""
+    assert_square(load_bytes(tmp_path, "l1.obj", b"# caf\xe9 scan \xff\xfe\n" + SQUARE_OBJ.encode()
+                             + b"g t\xeate\n"))
+
+
+@pytest.mark.parametrize("name,text,bom", [("c.obj", SQUARE_OBJ, False), ("c.off", SQUARE_OFF, False),
+                                           ("c.ply", SQUARE_PLY, False), ("c.obj", SQUARE_OBJ, True),
+                                           ("c.off", SQUARE_OFF, True)])  # a PLY starts with 'ply'
+def test_crlf_and_bom(tmp_path, name, text, bom):
+    data = text.replace("\n", "\r\n").encode()
+    assert_square(load_bytes(tmp_path, name, (b"\xef\xbb\xbf" if bom else b"") + data))
+    if bom:  # BOM with LF line endings too (was 'face indices out of range' for OBJ)
+        assert_square(load_bytes(tmp_path, name, b"\xef\xbb\xbf" + text.encode()))
+
+
+def test_obj_polygons_and_line_continuation(tmp_path):
+    m = load_bytes(tmp_path, "q.obj", "v 0 0 0\nv 100 0 0\nv 100 100 0\nv 0 100 0\nf 1 2 \\\n 3 4\n")
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2], [0, 2, 3]])
+
+
+@pytest.mark.parametrize("name,data,match", [
+    ("gz.obj", "gzip", "gzip-compressed data"),
+    ("png.ply", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(60), "PNG image"),
+    ("zip.off", b"PK\x03\x04" + bytes(60), "ZIP archive"),
+    ("jpg.wrl", b"\xff\xd8\xff\xe0" + bytes(60), "JPEG image"),
+    ("nul.obj", b"v 0 0 0\x00\x00\nf 1 2 3\n", "binary data"),
+])
+def test_misnamed_files(tmp_path, name, data, match):
+    import gzip
+
+    if data == "gzip":
+        data = gzip.compress(SQUARE_OBJ.encode())
+    with pytest.raises(MeshFileError, match=match) as e:
+        load_bytes(tmp_path, name, data)
+    assert name in one_line(e)
+
+
+@pytest.mark.parametrize("name,text,exc,match", [
+    ("e.obj", "", MeshFileError, "empty"),
+    ("e2.obj", "# only a comment\r\n\r\n", MeshError, "empty"),
+    ("vo.obj", SQUARE_V, MeshError, "point cloud without faces"),
+    ("oor.obj", SQUARE_V + "f 1 2 9\n", MeshError, r"face 0 has vertex indices \[0, 1, 8\] outside"),
+    ("zero.obj", SQUARE_V + "f 0 1 2\n", MeshError, "index 0 is out of range"),
+    ("huge.obj", SQUARE_V + "f 1 2 99999999999999999999999\n", MeshError, "out of range"),
+    ("oor.off", SQUARE_OFF.replace("3 1 3 2", "3 1 7 2"), MeshError, "outside"),
+    ("neg.off", SQUARE_OFF.replace("3 1 3 2", "3 1 -1 2"), MeshError, "outside"),
+    ("fl.obj", SQUARE_V + "f 1.5 2 3\n", MeshFileError, "'1.5' is not an integer index"),
+    ("fl2.obj", SQUARE_V + "f 1.0/1 2 3\n", MeshFileError, "'1.0/1' is not an integer index"),
+    ("fl.off", SQUARE_OFF.replace("3 1 3 2", "3 1.5 3 2"), MeshFileError, "face 1 is not integers"),
+    ("fln.off", SQUARE_OFF.replace("3 1 3 2", "3.0 1 3 2"), MeshFileError, "face 1 is not integers"),
+    ("v2.obj", "v 1 2\nf 1 1 1\n", MeshFileError, "line 1: a vertex needs x y z"),
+    ("vx.obj", "v 1 2 x\n", MeshFileError, "line 1: not numbers"),
+    ("4off.off", "4OFF\n1 0 0\n1 2 3 4\n", MeshFileError, "unsupported OFF variant"),
+])
+def test_careful_user_bad_text_meshes(tmp_path, name, text, exc, match):
+    with pytest.raises(exc, match=match) as e:
+        load_bytes(tmp_path, name, text)
+    assert name in one_line(e)
+
+
+def test_obj_float_index_is_refused_not_truncated(tmp_path):
+    """'f 1.5 2 3' must not be read as 'f 1 2 3'."""
+    with pytest.raises(MeshFileError):
+        load_bytes(tmp_path, "f.obj", SQUARE_V + "f 1.5 2 3\nf 2 4 3\n")
