@@ -11,6 +11,8 @@ from ..errors import MeshFileError
 
 __all__ = ["load_bnd"]
 
+_MAX_ID = 2**53  # larger "indices" are not vertex ids (and 1e308 would overflow int64)
+
 
 def load_bnd(path, to_mm: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Read a BU-3DFE landmark file: one ``index x y z`` per line.
@@ -49,6 +51,8 @@ def load_bnd(path, to_mm: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
             raise MeshFileError(f"{path}: line {n}: not numbers: {s[:60]!r}") from None
         if not idx.is_integer() or idx < 0:
             raise MeshFileError(f"{path}: line {n}: index {parts[0]!r} is not a non-negative integer")
+        if idx > _MAX_ID:
+            raise MeshFileError(f"{path}: line {n}: index {parts[0][:30]!r} is too large for a vertex index")
         if not all(math.isfinite(x) for x in xyz):
             raise MeshFileError(f"{path}: line {n}: NaN or infinite coordinate")
         ids.append(int(idx))

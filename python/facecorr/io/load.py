@@ -118,6 +118,8 @@ def _read_trimesh(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
 
     if fmt == "stl":
         _check_binary_stl(path)
+    elif fmt == "ply":
+        _check_ply(path)
     try:
         with warnings.catch_warnings():  # trimesh warns about textures/colours we ignore
             warnings.simplefilter("ignore")
@@ -141,6 +143,35 @@ def _read_trimesh(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
     V = np.concatenate(Vs) if Vs else np.zeros((0, 3))
     F = np.concatenate(Fs) if Fs else np.zeros((0, 3), np.int64)
     return V, F
+
+
+def _check_ply(path: Path) -> None:
+    """PLY header sanity (trimesh reads a short ASCII body silently): the header must end, element
+    counts be integers, and an ASCII body have at least one line per element row."""
+    with open(path, "rb") as fh:
+        head = fh.read(65536)
+    if not head.startswith(b"ply"):
+        return  # trimesh reports 'not a ply file'
+    end = head.find(b"end_header")
+    if end < 0:
+        raise MeshFileError(f"{path}: broken PLY file (no 'end_header' in the first 64 KiB)")
+    words = [ln.split() for ln in head[:end].decode("latin-1").splitlines()]
+    fmt = next((w[1] for w in words if len(w) > 1 and w[0] == "format"), None)
+    total = 0
+    for w in words:
+        if w and w[0] == "element":
+            try:
+                total += int(w[2])
+                if int(w[2]) < 0:
+                    raise ValueError
+            except (IndexError, ValueError):
+                raise MeshFileError(f"{path}: broken PLY header ({' '.join(w)[:60]!r})") from None
+    if fmt == "ascii":
+        body = path.read_bytes()[end:].split(b"\n", 1)
+        rows = sum(1 for ln in body[1].splitlines() if ln.strip()) if len(body) > 1 else 0
+        if rows < total:
+            raise MeshFileError(f"{path}: broken PLY file (the header declares {total} element rows, "
+                                f"the body has {rows} lines): truncated?")
 
 
 def _check_binary_stl(path: Path) -> None:
@@ -358,6 +389,10 @@ def _read_off(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return V, np.array(tris, np.int64).reshape(-1, 3)
 
 
+#: Largest coordinate accepted (1e9 km in mm): beyond it areas and distances overflow float64.
+_MAX_COORD = 1e15
+
+
 def _merge_duplicates(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """Merge exactly equal vertices, keeping first occurrences in their original order."""
     _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
@@ -386,6 +421,11 @@ def _clean(V, F, name: str, merge_duplicates: bool) -> tuple[np.ndarray, np.ndar
     if bad.any():
         raise MeshError(f"{name}: {int(bad.sum())} vertices have NaN or infinite coordinates "
                         f"(first: vertex {int(np.argmax(bad))})")
+    big = (np.abs(V) > _MAX_COORD).any(axis=1)
+    if big.any():
+        raise MeshError(f"{name}: {int(big.sum())} vertices have coordinates beyond ±{_MAX_COORD:.0e} "
+                        f"(first: vertex {int(np.argmax(big))}: {V[int(np.argmax(big))].tolist()}); "
+                        f"not a face scan in any unit")
     if F.min() < 0 or F.max() >= len(V):
         k = int(np.argmax((F < 0).any(axis=1) | (F >= len(V)).any(axis=1)))
         raise MeshError(f"{name}: face {k} has vertex indices {F[k].tolist()} outside [0, {len(V) - 1}]")
@@ -395,7 +435,8 @@ def _clean(V, F, name: str, merge_duplicates: bool) -> tuple[np.ndarray, np.ndar
         V, F, n_dup = _merge_duplicates(V, F)
     meta["n_duplicate_vertices_merged"] = int(n_dup)
     a, b, c = (V[F[:, k]] for k in range(3))
-    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    with np.errstate(all="ignore"):  # |V| <= 1e15: no overflow, but tiny areas may underflow
+        area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
     diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
     repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])
     degenerate = repeated | (area2 <= 2e-12 * diag * diag)
@@ -463,7 +504,10 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
     meta["n_components"] = int(len(np.unique(labels[F[:, 0]])))
     inferred = units == "auto"
     if inferred:  # by the largest piece, so that far-away debris does not change the size
-        units = infer_units(V[labels == 0])
+        try:
+            units = infer_units(V[labels == 0])
+        except UnitsError as e:
+            raise UnitsError(f"{path}: {e}") from None
         factor = UNIT_TO_MM[units]
     meta.update(format=fmt, units_inferred=inferred)
     mesh = Mesh(V * factor, F, to_mm=factor, units=units, source=str(path), meta=meta)

@@ -23,6 +23,7 @@ from ..geometry import transforms
 __all__ = ["read_wrl", "write_wrl_text"]
 
 _TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|#[^\n]*|[{}\[\]]|[^\s{}\[\],"#]+|,')
+_MAX_DEPTH = 100  # node nesting (real files: < 10)
 _SCALAR_WORDS = {"TRUE", "FALSE", "NULL"}
 _NONFINITE = {"nan", "inf", "infinity"}  # not VRML, but printf writes them; reported as NaN/inf
 # A bracketed list without nodes, strings or comments (the big point / coordIndex arrays).
@@ -74,6 +75,7 @@ class _WrlParser:
         tokenize(done, len(text))
         self.toks, self.pos, self.i = toks, pos, 0
         self.defs: dict[str, _Node] = {}
+        self.depth = 0  # nesting of parse_node (bounded: Python recursion)
 
     def error(self, msg: str, at: int | None = None) -> MeshFileError:
         k = self.i if at is None else at
@@ -140,6 +142,15 @@ class _WrlParser:
         return nodes
 
     def parse_node(self) -> _Node | None:
+        if self.depth >= _MAX_DEPTH:
+            raise self.error(f"nodes nested more than {_MAX_DEPTH} deep")
+        self.depth += 1
+        try:
+            return self._parse_node()
+        finally:
+            self.depth -= 1
+
+    def _parse_node(self) -> _Node | None:
         t = self.next()
         if t == "USE":
             name = self.next()
@@ -228,12 +239,11 @@ class _RawList:
         try:
             return np.array(toks, dtype=dtype)
         except (ValueError, OverflowError):
-            check = _is_float if dtype is np.float64 else _is_int
-            bad = next(t for t in toks if not check(t))
-            at = self.text.find(bad, self.a, self.b)
+            k, why = _bad_token(toks, dtype, what)
+            at = self.text.find(toks[k], self.a, self.b)
             line = self.text.count("\n", 0, at) + 1
-            raise MeshFileError(f"{self.parser.name}: broken VRML at line {line}: {bad!r} is not "
-                                f"{what} in {field}") from None
+            raise MeshFileError(f"{self.parser.name}: broken VRML at line {line}: {toks[k][:40]!r} "
+                                f"{why} in {field}") from None
 
     def floats(self, field: str) -> np.ndarray:
         return self._convert(np.float64, field, "a number")
@@ -250,21 +260,31 @@ class _ScalarList:
     def __init__(self, toks, start, parser):
         self.toks, self.start, self.parser = toks, start, parser
 
-    def floats(self, field: str) -> np.ndarray:
+    def _convert(self, dtype, field: str, what: str) -> np.ndarray:
         try:
-            return np.array(self.toks, dtype=np.float64)
-        except ValueError:
-            bad = next(k for k, t in enumerate(self.toks) if not _is_float(t))
-            raise self.parser.error(f"{self.toks[bad]!r} is not a number in {field}",
-                                    self.start + bad) from None
+            return np.array(self.toks, dtype=dtype)
+        except (ValueError, OverflowError):
+            k, why = _bad_token(self.toks, dtype, what)
+            raise self.parser.error(f"{self.toks[k][:40]!r} {why} in {field}", self.start + k) from None
+
+    def floats(self, field: str) -> np.ndarray:
+        return self._convert(np.float64, field, "a number")
 
     def ints(self, field: str) -> np.ndarray:
-        try:
-            return np.array(self.toks, dtype=np.int64)
-        except (ValueError, OverflowError):
-            bad = next(k for k, t in enumerate(self.toks) if not _is_int(t))
-            raise self.parser.error(f"{self.toks[bad]!r} is not an integer in {field}",
-                                    self.start + bad) from None
+        return self._convert(np.int64, field, "an integer")
+
+
+def _bad_token(toks: list, dtype, what: str) -> tuple[int, str]:
+    """(position, reason) of the first token of ``toks`` that numpy cannot convert to ``dtype``."""
+    for k, t in enumerate(toks):
+        if dtype is np.float64:
+            if not _is_float(t):
+                return k, f"is not {what}"
+        elif not _is_int(t):
+            return k, f"is not {what}"
+        elif not -2**63 <= int(t) < 2**63:
+            return k, "is out of range"
+    return 0, f"cannot be converted to {what}"  # not reached: numpy converts like float()/int()
 
 
 def _is_float(t: str) -> bool:
@@ -298,6 +318,8 @@ def _transform_matrix(node: _Node, p: _WrlParser) -> np.ndarray:
         a = v.floats(field) if isinstance(v, _ScalarList) else None
         if a is None or len(a) != len(default):
             raise p.error(f"Transform.{field} needs {len(default)} numbers")
+        if not np.isfinite(a).all():
+            raise p.error(f"Transform.{field} has NaN or infinite numbers", v.start)
         return a
 
     def h(m3=None, t=None):
@@ -308,6 +330,11 @@ def _transform_matrix(node: _Node, p: _WrlParser) -> np.ndarray:
             m[:3, 3] = t
         return m
 
+    with np.errstate(all="ignore"):  # huge values overflow to inf, reported by load_mesh
+        return _trs(vec, h)
+
+
+def _trs(vec, h) -> np.ndarray:
     T = h(t=vec("translation", [0, 0, 0]))
     C = h(t=vec("center", [0, 0, 0]))
     R = h(_rotation(vec("rotation", [0, 0, 1, 0])))
@@ -326,7 +353,8 @@ def _collect_face_sets(nodes, p: _WrlParser, M: np.ndarray, out: list, depth: in
         if node.type == "IndexedFaceSet":
             out.append((node, M))
             continue
-        here = M @ _transform_matrix(node, p) if node.type == "Transform" else M
+        with np.errstate(all="ignore"):
+            here = M @ _transform_matrix(node, p) if node.type == "Transform" else M
         if node.type == "Shape":
             g = node.fields.get("geometry")
             if isinstance(g, _Node):
@@ -375,7 +403,8 @@ def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
             raise MeshFileError(f"{path}: Coordinate.point has {len(pts)} numbers, not a multiple of 3")
         V = pts.reshape(-1, 3)
         if not np.allclose(M, np.eye(4)):
-            V = V @ M[:3, :3].T + M[:3, 3]
+            with np.errstate(all="ignore"):  # overflow -> inf, reported by load_mesh
+                V = V @ M[:3, :3].T + M[:3, 3]
         ci = node.fields.get("coordIndex")
         idx = ci.ints("coordIndex") if isinstance(ci, (_ScalarList, _RawList)) else np.zeros(0, np.int64)
         F = _fan_triangulate(idx)
