@@ -7,6 +7,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 
 use _core::blend::normal_equations;
+use _core::fixtures::grid;
 use _core::lbfgs::{minimize_preconditioned, LbfgsOptions};
 use _core::shape_fit::{energy_gradient, Adjacency, BlockPreconditioner, Correspondences, Weights, IDENTITY};
 
@@ -20,22 +21,10 @@ fn lcg(seed: u64) -> impl FnMut() -> f64 {
 
 /// A 73 x 73 grid (2 mm spacing) with a gentle bump, its faces and a target 1 mm above it.
 fn problem() -> (Vec<[f64; 3]>, Adjacency, Correspondences) {
-    let n = 73usize;
-    let mut v = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let (x, y) = (2.0 * i as f64 - 72.0, 2.0 * j as f64 - 72.0);
-            v.push([x, y, 20.0 * (-(x * x + y * y) / 2000.0).exp()]);
-        }
-    }
-    let mut f = Vec::new();
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = j * n + i;
-            f.push([a, a + 1, a + n + 1]);
-            f.push([a, a + n + 1, a + n]);
-        }
-    }
+    let (v, f) = grid(73, 73, |i, j| {
+        let (x, y) = (2.0 * i as f64 - 72.0, 2.0 * j as f64 - 72.0);
+        [x, y, 20.0 * (-(x * x + y * y) / 2000.0).exp()]
+    });
     let adj = Adjacency::from_faces(v.len(), &f);
     let mut r = lcg(11);
     let corr = Correspondences {

@@ -7,6 +7,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 
 use _core::fingerprint::fingerprint;
+use _core::fixtures::{faces_u32, grid};
 use _core::geodesic::{GeodesicSolver, Method};
 use _core::kdtree::KdTree3;
 
@@ -20,23 +21,11 @@ fn lcg(seed: u64) -> impl FnMut() -> f64 {
 
 /// A 224 x 224 grid (50176 vertices, spacing 1 mm) bent into a smooth bump, like a face.
 fn wavy_surface() -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
-    let n = 224usize;
-    let mut v = Vec::with_capacity(n * n);
-    for j in 0..n {
-        for i in 0..n {
-            let (x, y) = (i as f64 - 112.0, j as f64 - 112.0);
-            v.push([x, y, 40.0 * (-(x * x + y * y) / 3000.0).exp() + 3.0 * (x / 9.0).sin()]);
-        }
-    }
-    let id = |i: usize, j: usize| (j * n + i) as u32;
-    let mut f = Vec::with_capacity(2 * (n - 1) * (n - 1));
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            f.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            f.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-        }
-    }
-    (v, f)
+    let (v, f) = grid(224, 224, |i, j| {
+        let (x, y) = (i as f64 - 112.0, j as f64 - 112.0);
+        [x, y, 40.0 * (-(x * x + y * y) / 3000.0).exp() + 3.0 * (x / 9.0).sin()]
+    });
+    (v, faces_u32(f))
 }
 
 fn bench_kdtree(c: &mut Criterion) {

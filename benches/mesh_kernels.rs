@@ -4,6 +4,7 @@
 //! (facecorr's pool; `FACECORR_THREADS` overrides).
 
 use _core::curvature::{principal_curvatures, umbilics, CurvatureOptions, UmbilicOptions};
+use _core::fixtures::grid;
 use _core::mesh::{components, vertex_areas, vertex_normals, Face};
 use _core::vec3::Vec3;
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -12,30 +13,18 @@ use std::hint::black_box;
 /// n x n grid, 1 mm spacing, a smooth "face" (a dome with a nose-like bump) plus
 /// deterministic pseudo-random noise of ±0.05 mm.
 fn face_like_grid(n: usize) -> (Vec<Vec3>, Vec<Face>) {
-    let mut v = Vec::with_capacity(n * n);
     let mut state: u64 = 0x9E3779B97F4A7C15;
     let c = n as f64 / 2.0;
-    for j in 0..n {
-        for i in 0..n {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            let noise = ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.1;
-            let (x, y) = (i as f64 - c, j as f64 - c);
-            let dome = -(x * x + y * y) / 400.0;
-            let nose = 25.0 * (-(x * x + (y + 10.0) * (y + 10.0)) / 200.0).exp();
-            v.push([x, y, dome + nose + noise]);
-        }
-    }
-    let mut f = Vec::with_capacity(2 * (n - 1) * (n - 1));
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = j * n + i;
-            f.push([a, a + 1, a + n + 1]);
-            f.push([a, a + n + 1, a + n]);
-        }
-    }
-    (v, f)
+    grid(n, n, |i, j| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        let noise = ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.1;
+        let (x, y) = (i as f64 - c, j as f64 - c);
+        let dome = -(x * x + y * y) / 400.0;
+        let nose = 25.0 * (-(x * x + (y + 10.0) * (y + 10.0)) / 200.0).exp();
+        [x, y, dome + nose + noise]
+    })
 }
 
 fn bench(c: &mut Criterion) {

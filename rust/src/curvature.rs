@@ -387,24 +387,17 @@ mod tests {
 
     /// Icosphere-like UV-free sphere: subdivided octahedron projected to radius r.
     fn sphere(r: f64, levels: usize) -> (Vec<Vec3>, Vec<Face>) {
-        let mut v: Vec<Vec3> = vec![
-            [1.0, 0.0, 0.0],
-            [-1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [0.0, -1.0, 0.0],
-            [0.0, 0.0, 1.0],
-            [0.0, 0.0, -1.0],
-        ];
-        let mut f: Vec<Face> = vec![
-            [0, 2, 4],
-            [2, 1, 4],
-            [1, 3, 4],
-            [3, 0, 4],
-            [2, 0, 5],
-            [1, 2, 5],
-            [3, 1, 5],
-            [0, 3, 5],
-        ];
+        // The octahedron: vertex 2k / 2k + 1 at +/- axis k; four faces around +z (vertex 4) and
+        // four around -z (vertex 5), over the ring 0, 2, 1, 3 of the equator.
+        let mut v: Vec<Vec3> = (0..6)
+            .map(|k| {
+                let mut p = [0.0; 3];
+                p[k / 2] = if k % 2 == 0 { 1.0 } else { -1.0 };
+                p
+            })
+            .collect();
+        let ring = [0, 2, 1, 3, 0];
+        let mut f: Vec<Face> = (0..4).map(|k| [ring[k], ring[k + 1], 4]).chain((0..4).map(|k| [ring[k + 1], ring[k], 5])).collect();
         for _ in 0..levels {
             let mut mid = std::collections::HashMap::new();
             let mut nf = Vec::new();

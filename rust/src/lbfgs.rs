@@ -586,16 +586,21 @@ mod tests {
         let n = 50;
         let diag: Vec<f64> = (0..n).map(|i| 1.0 + 99.0 * i as f64 / (n - 1) as f64).collect();
         let b: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).sin()).collect();
+        // (A x)_i
+        let a_x = |x: &[f64], i: usize| {
+            let mut ax = (diag[i] + 2.0) * x[i];
+            if i > 0 {
+                ax -= x[i - 1];
+            }
+            if i + 1 < n {
+                ax -= x[i + 1];
+            }
+            ax
+        };
         let f = |x: &[f64], g: &mut [f64]| {
             let mut v = 0.0;
             for i in 0..n {
-                let mut ax = (diag[i] + 2.0) * x[i];
-                if i > 0 {
-                    ax -= x[i - 1];
-                }
-                if i + 1 < n {
-                    ax -= x[i + 1];
-                }
+                let ax = a_x(x, i);
                 g[i] = ax - b[i];
                 v += 0.5 * x[i] * ax - b[i] * x[i];
             }
@@ -607,14 +612,7 @@ mod tests {
         assert_eq!(r.termination, Termination::GradientTolerance, "{r:?}");
         // Check A x = b directly.
         for i in 0..n {
-            let mut ax = (diag[i] + 2.0) * x[i];
-            if i > 0 {
-                ax -= x[i - 1];
-            }
-            if i + 1 < n {
-                ax -= x[i + 1];
-            }
-            assert!((ax - b[i]).abs() < 1e-7);
+            assert!((a_x(&x, i) - b[i]).abs() < 1e-7);
         }
         assert!(r.iterations < 100, "{r:?}");
     }

@@ -15,6 +15,8 @@ pub mod raster;
 pub mod lbfgs;
 pub mod shape_fit;
 pub mod blend;
+#[doc(hidden)]
+pub mod fixtures;
 
 #[cfg(feature = "python")]
 mod py;

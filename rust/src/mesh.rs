@@ -238,13 +238,8 @@ mod tests {
     /// Two triangles forming the unit square in z = 0, plus a separate small triangle.
     fn sample() -> (Vec<Vec3>, Vec<Face>) {
         let v = vec![
-            [0.0, 0.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [5.0, 0.0, 0.0],
-            [5.5, 0.0, 0.0],
-            [5.0, 0.5, 0.0],
+            [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0], // the square
+            [5.0, 0.0, 0.0], [5.5, 0.0, 0.0], [5.0, 0.5, 0.0], // the small triangle
         ];
         let f = vec![[0, 1, 2], [0, 2, 3], [4, 5, 6]];
         (v, f)

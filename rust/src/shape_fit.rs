@@ -573,22 +573,10 @@ mod tests {
 
     /// A regular grid patch in the xy plane (spacing h), z from `height`.
     fn grid(nx: usize, ny: usize, h: f64, height: impl Fn(f64, f64) -> f64) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
-        let mut v = Vec::new();
-        for j in 0..ny {
-            for i in 0..nx {
-                let (x, y) = (i as f64 * h, j as f64 * h);
-                v.push([x, y, height(x, y)]);
-            }
-        }
-        let mut f = Vec::new();
-        for j in 0..ny - 1 {
-            for i in 0..nx - 1 {
-                let a = j * nx + i;
-                f.push([a, a + 1, a + nx + 1]);
-                f.push([a, a + nx + 1, a + nx]);
-            }
-        }
-        (v, f)
+        crate::fixtures::grid(nx, ny, |i, j| {
+            let (x, y) = (i as f64 * h, j as f64 * h);
+            [x, y, height(x, y)]
+        })
     }
 
     fn pseudo_random(k: usize) -> f64 {
