@@ -701,3 +701,87 @@ def test_obj_float_index_is_refused_not_truncated(tmp_path):
     """'f 1.5 2 3' must not be read as 'f 1 2 3'."""
     with pytest.raises(MeshFileError):
         load_bytes(tmp_path, "f.obj", SQUARE_V + "f 1.5 2 3\nf 2 4 3\n")
+
+
+# ----------------------------------------------------------------------------- fuzzer findings
+# Minimal inputs of the crashes found by tests/test_io_fuzz.py / benches/fuzz_readers.py.
+
+TRI_WRL = ("#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point "
+           "[ 0 0 0, 100 0 0, 0 100 0 ] } coordIndex [ 0 1 2 -1 ] } }\n")
+
+
+@pytest.mark.parametrize("long_list", [False, True])
+def test_fuzz_wrl_index_beyond_int64(tmp_path, long_list):
+    """Was StopIteration (the int64 overflow was not found by the 'is it an integer' scan)."""
+    pad = " 0 1 2 -1" * (200 if long_list else 0)  # > 1000 chars: the numpy fast path
+    text = TRI_WRL.replace("coordIndex [ 0 1 2 -1", "coordIndex [" + pad + " 0 1 99999999999999999999 -1")
+    with pytest.raises(MeshFileError, match="'99999999999999999999' is out of range in coordIndex") as e:
+        load_bytes(tmp_path, "big.wrl", text)
+    one_line(e)
+
+
+def test_fuzz_wrl_nul_byte(tmp_path):
+    """Was ValueError (a NUL byte collided with the parser's internal marker of long lists)."""
+    with pytest.raises(MeshFileError, match="NUL bytes") as e:
+        load_bytes(tmp_path, "nul.wrl", TRI_WRL.replace("Shape {", "Shape { \x00", 1))
+    one_line(e)
+
+
+def test_wrl_deep_nesting_is_an_error_not_a_recursion_error(tmp_path):
+    text = "#VRML V2.0 utf8\n" + "Group { children [ " * 3000 + "] }" * 3000
+    with pytest.raises(MeshFileError, match="nested more than 100 deep") as e:
+        load_bytes(tmp_path, "deep.wrl", text)
+    one_line(e)
+
+
+@pytest.mark.parametrize("field", ["rotation nan 0 1 1", "center 1e999 0 0", "scale 1 inf 1"])
+def test_wrl_non_finite_transform(tmp_path, field):
+    text = TRI_WRL.replace("Shape", f"Transform {{ {field} children Shape", 1).rstrip() + " }\n"
+    with pytest.raises(MeshFileError, match=r"Transform\.\w+ has NaN or infinite numbers") as e:
+        load_bytes(tmp_path, "t.wrl", text)
+    assert "line 2" in one_line(e)
+
+
+def test_wrl_gzip_compressed_loads(tmp_path):
+    import gzip
+
+    m = load_bytes(tmp_path, "z.wrl", gzip.compress(TRI_WRL.encode()))
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2]])
+    with pytest.raises(MeshFileError, match="broken gzip-compressed VRML") as e:
+        load_bytes(tmp_path, "zz.wrl", gzip.compress(TRI_WRL.encode())[:30])
+    one_line(e)
+
+
+def test_fuzz_bnd_huge_index(tmp_path):
+    """Was OverflowError: Python int too large to convert to C long."""
+    p = tmp_path / "x.bnd"
+    p.write_text("8017 -55.0880 31.4430 58.2150\n1e308 1,2,3\n")
+    with pytest.raises(MeshFileError, match="line 2: index '1e308' is too large") as e:
+        io.load_bnd(p)
+    one_line(e)
+
+
+def test_ply_ascii_body_shorter_than_header(tmp_path):
+    """Was read silently as a point cloud of the rows present."""
+    text = SQUARE_PLY.replace("element vertex 4", "element vertex 99999999999")
+    with pytest.raises(MeshFileError, match="declares 100000000001 element rows, the body has 6 lines") as e:
+        load_bytes(tmp_path, "c.ply", text)
+    one_line(e)
+    with pytest.raises(MeshFileError, match="broken PLY header"):
+        load_bytes(tmp_path, "d.ply", SQUARE_PLY.replace("element face 2", "element face two"))
+
+
+@pytest.mark.parametrize("x", ["1e308", "-1.7e308", "1e16"])
+def test_huge_finite_coordinates_are_refused(tmp_path, x):
+    """1e308 overflowed the area computation and was reported as 'all faces are degenerate'."""
+    with pytest.raises(MeshError, match="coordinates beyond") as e:
+        load_bytes(tmp_path, "h.obj", f"v {x} 0 0\nv 0 100 0\nv 0 0 100\nf 1 2 3\n")
+    one_line(e)
+
+
+def test_units_error_names_the_file(tmp_path):
+    p = tmp_path / "tiny.obj"
+    p.write_text("v 0 0 0\nv 1.5 0 0\nv 0 1.5 0\nf 1 2 3\n")
+    with pytest.raises(UnitsError, match="cannot infer units") as e:
+        io.load_mesh(p)
+    assert str(p) in one_line(e)

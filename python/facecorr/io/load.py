@@ -215,6 +215,8 @@ def _sniff(path: Path, fmt: str) -> None:
     with open(path, "rb") as fh:
         head = fh.read(16)
     for magic, what in _SIGNATURES:
+        if fmt == "wrl" and magic == b"\x1f\x8b":
+            continue  # gzip-compressed VRML is valid (read_wrl decompresses it)
         if head.startswith(magic):
             if what is None:  # BMP: 'BM', then the file size (little-endian) in bytes 2-6
                 if len(head) < 6 or int.from_bytes(head[2:6], "little") != path.stat().st_size:

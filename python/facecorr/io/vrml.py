@@ -4,7 +4,8 @@ writer :func:`write_wrl_text` used by :func:`facecorr.io.save_mesh`.
 Every ``IndexedFaceSet`` reached through ``children`` / ``level`` / ``Shape.geometry`` is read
 (``coord Coordinate { point [...] }`` or ``USE``, ``coordIndex [... -1 ...]`` polygons,
 fan-triangulated; ``ccw FALSE`` flips them); several shapes are merged; ``Transform`` nodes are
-applied; texture, normal and colour nodes, PROTOs and ROUTEs are ignored. Long plain number lists
+applied; texture, normal and colour nodes, PROTOs and ROUTEs are ignored. A gzip-compressed file
+(allowed by the VRML spec) is decompressed. Long plain number lists
 (> 1000 characters) are converted in one numpy call. Coordinates are returned as in the file (no
 unit conversion; :func:`facecorr.io.load_mesh` does that). Syntax errors are one-line
 :class:`~facecorr.errors.MeshFileError` naming the line.
@@ -12,7 +13,9 @@ unit conversion; :func:`facecorr.io.load_mesh` does that). Syntax errors are one
 
 from __future__ import annotations
 
+import gzip
 import re
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -382,6 +385,13 @@ def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
         raw = path.read_bytes()
     except OSError as e:
         raise MeshFileError(f"{path}: cannot read: {e.strerror or e}") from None
+    if raw[:2] == b"\x1f\x8b":  # VRML allows gzip-compressed .wrl files
+        try:
+            raw = gzip.decompress(raw)
+        except (OSError, EOFError, zlib.error) as e:
+            raise MeshFileError(f"{path}: broken gzip-compressed VRML file ({e})") from None
+    if b"\x00" in raw:
+        raise MeshFileError(f"{path}: binary data (NUL bytes) in a VRML file: not a VRML file, or a broken one")
     text = raw.decode("utf-8", errors="replace")
     head = text.lstrip("\ufeff")[:64]
     if not head.startswith("#VRML"):
