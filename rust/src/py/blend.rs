@@ -30,15 +30,8 @@ fn rows3<'a>(a: &'a PyReadonlyArray2<'_, f64>, n: usize, name: &str) -> PyResult
 #[pyo3(signature = (basis, lin, w, da, qn, v, lam, rigid))]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn blend_normal_equations<'py>(
-    py: Python<'py>,
-    basis: PyReadonlyArray2<'py, f64>,
-    lin: PyReadonlyArray2<'py, f64>,
-    w: PyReadonlyArray1<'py, f64>,
-    da: PyReadonlyArray2<'py, f64>,
-    qn: PyReadonlyArray2<'py, f64>,
-    v: PyReadonlyArray2<'py, f64>,
-    lam: f64,
-    rigid: bool,
+    py: Python<'py>, basis: PyReadonlyArray2<'py, f64>, lin: PyReadonlyArray2<'py, f64>, w: PyReadonlyArray1<'py, f64>,
+    da: PyReadonlyArray2<'py, f64>, qn: PyReadonlyArray2<'py, f64>, v: PyReadonlyArray2<'py, f64>, lam: f64, rigid: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>, f64)> {
     let ws = w.as_slice().map_err(|_| value_err("w must be C-contiguous"))?;
     let n = ws.len();

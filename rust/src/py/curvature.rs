@@ -1,6 +1,8 @@
 //! Bindings of `crate::curvature`: principal curvatures/directions and umbilics.
 
-use super::util::{mesh as mesh_from, run, value_err, vec3_to_array};
+use super::util::{ids_to_array, mesh as mesh_from, on_mesh, run, value_err, vec3_to_array};
+use crate::mesh::Face;
+use crate::vec3::Vec3;
 use crate::curvature::{self as core, CurvatureOptions, UmbilicOptions};
 use numpy::ndarray::Array1;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
@@ -27,17 +29,12 @@ fn check_radius(radius: f64, rings: usize, what: &str) -> PyResult<()> {
 #[pyfunction]
 #[pyo3(signature = (vertices, faces, rings=2, radius=0.0))]
 fn principal_curvatures<'py>(
-    py: Python<'py>,
-    vertices: PyReadonlyArray2<'py, f64>,
-    faces: PyReadonlyArray2<'py, i64>,
-    rings: usize,
-    radius: f64,
+    py: Python<'py>, vertices: PyReadonlyArray2<'py, f64>, faces: PyReadonlyArray2<'py, i64>, rings: usize, radius: f64,
 ) -> PyResult<Curv<'py>> {
     let what = "principal_curvatures";
     check_radius(radius, rings, what)?;
-    let (v, f) = mesh_from(&vertices, &faces, what)?;
     let opts = CurvatureOptions { rings, radius };
-    let c = run(py, what, || core::principal_curvatures(&v, &f, &opts))?;
+    let c = on_mesh(py, &vertices, &faces, what, |v, f| core::principal_curvatures(v, f, &opts))?;
     Ok((
         Array1::from(c.k1).into_pyarray(py),
         Array1::from(c.k2).into_pyarray(py),
@@ -80,26 +77,39 @@ fn curvature_field(x: &PyReadonlyArray1<'_, f64>, n: usize, name: &str, what: &s
     Ok(a.to_vec())
 }
 
+/// The mesh and its principal curvatures (k1, k2) per vertex, validated, for the umbilic kernels.
+struct CurvedMesh {
+    v: Vec<Vec3>,
+    f: Vec<Face>,
+    k1: Vec<f64>,
+    k2: Vec<f64>,
+}
+
+impl CurvedMesh {
+    fn new(
+        vertices: &PyReadonlyArray2<'_, f64>, faces: &PyReadonlyArray2<'_, i64>,
+        k1: &PyReadonlyArray1<'_, f64>, k2: &PyReadonlyArray1<'_, f64>, what: &str,
+    ) -> PyResult<Self> {
+        let (v, f) = mesh_from(vertices, faces, what)?;
+        let k1 = curvature_field(k1, v.len(), "k1", what)?;
+        let k2 = curvature_field(k2, v.len(), "k2", what)?;
+        Ok(Self { v, f, k1, k2 })
+    }
+}
+
 /// Umbilicity field (N,) after smoothing; see `crate::curvature`.
 #[pyfunction]
 #[pyo3(signature = (vertices, faces, k1, k2, smooth_iters=0, eps_rel=0.1))]
 fn umbilicity<'py>(
-    py: Python<'py>,
-    vertices: PyReadonlyArray2<'py, f64>,
-    faces: PyReadonlyArray2<'py, i64>,
-    k1: PyReadonlyArray1<'py, f64>,
-    k2: PyReadonlyArray1<'py, f64>,
-    smooth_iters: usize,
-    eps_rel: f64,
+    py: Python<'py>, vertices: PyReadonlyArray2<'py, f64>, faces: PyReadonlyArray2<'py, i64>,
+    k1: PyReadonlyArray1<'py, f64>, k2: PyReadonlyArray1<'py, f64>, smooth_iters: usize, eps_rel: f64,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let what = "umbilicity";
     let opts = umbilic_options(smooth_iters, 1, 1.0, eps_rel, 0, what)?;
-    let (v, f) = mesh_from(&vertices, &faces, what)?;
-    let a = curvature_field(&k1, v.len(), "k1", what)?;
-    let b = curvature_field(&k2, v.len(), "k2", what)?;
+    let m = CurvedMesh::new(&vertices, &faces, &k1, &k2, what)?;
     let u = run(py, what, || {
-        let adj = crate::mesh::Adjacency::new(v.len(), &f);
-        core::umbilicity(&a, &b, &adj, &opts)
+        let adj = crate::mesh::Adjacency::new(m.v.len(), &m.f);
+        core::umbilicity(&m.k1, &m.k2, &adj, &opts)
     })?;
     Ok(Array1::from(u).into_pyarray(py))
 }
@@ -109,25 +119,15 @@ fn umbilicity<'py>(
 #[pyo3(signature = (vertices, faces, k1, k2, smooth_iters=0, ring=2, threshold=0.5, eps_rel=0.1, boundary_rings=0))]
 #[allow(clippy::too_many_arguments)]
 fn umbilics<'py>(
-    py: Python<'py>,
-    vertices: PyReadonlyArray2<'py, f64>,
-    faces: PyReadonlyArray2<'py, i64>,
-    k1: PyReadonlyArray1<'py, f64>,
-    k2: PyReadonlyArray1<'py, f64>,
-    smooth_iters: usize,
-    ring: usize,
-    threshold: f64,
-    eps_rel: f64,
-    boundary_rings: usize,
+    py: Python<'py>, vertices: PyReadonlyArray2<'py, f64>, faces: PyReadonlyArray2<'py, i64>,
+    k1: PyReadonlyArray1<'py, f64>, k2: PyReadonlyArray1<'py, f64>,
+    smooth_iters: usize, ring: usize, threshold: f64, eps_rel: f64, boundary_rings: usize,
 ) -> PyResult<Bound<'py, PyArray1<i64>>> {
     let what = "umbilics";
     let opts = umbilic_options(smooth_iters, ring, threshold, eps_rel, boundary_rings, what)?;
-    let (v, f) = mesh_from(&vertices, &faces, what)?;
-    let a = curvature_field(&k1, v.len(), "k1", what)?;
-    let b = curvature_field(&k2, v.len(), "k2", what)?;
-    let ids = run(py, what, || core::umbilics(&v, &f, &a, &b, &opts))?;
-    let out: Array1<i64> = ids.into_iter().map(|i| i as i64).collect();
-    Ok(out.into_pyarray(py))
+    let m = CurvedMesh::new(&vertices, &faces, &k1, &k2, what)?;
+    let ids = run(py, what, || core::umbilics(&m.v, &m.f, &m.k1, &m.k2, &opts))?;
+    Ok(ids_to_array(ids).into_pyarray(py))
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

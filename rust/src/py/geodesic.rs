@@ -7,6 +7,7 @@ use std::sync::Arc;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 
+use super::fingerprint::fingerprint_array;
 use super::util::{ids, mesh, run, value_err};
 use crate::geodesic::{GeodesicSolver as Core, Method};
 
@@ -26,18 +27,6 @@ pub(super) fn mesh_u32(
 /// Vertex ids in [0, n) as u32 (`util::ids`).
 pub(super) fn vertex_ids(a: &PyReadonlyArray1<'_, i64>, n: usize, name: &str) -> PyResult<Vec<u32>> {
     Ok(ids(a, n, name)?.into_iter().map(|i| i as u32).collect())
-}
-
-/// Finger Print radii: at least one, each finite and > 0.
-pub(super) fn check_radii(radii: &PyReadonlyArray1<'_, f64>) -> PyResult<Vec<f64>> {
-    let r: Vec<f64> = radii.as_array().to_vec();
-    if r.is_empty() {
-        return Err(value_err("radii is empty"));
-    }
-    if !r.iter().all(|x| x.is_finite() && *x > 0.0) {
-        return Err(value_err("radii must be finite and > 0"));
-    }
-    Ok(r)
 }
 
 fn method(s: &str) -> PyResult<Method> {
@@ -87,15 +76,9 @@ impl GeodesicSolver {
 
     #[pyo3(signature = (sources, max_distance=None, method="fmm"))]
     fn distances<'py>(
-        &self,
-        py: Python<'py>,
-        sources: PyReadonlyArray1<'py, i64>,
-        max_distance: Option<f64>,
-        method: &str,
+        &self, py: Python<'py>, sources: PyReadonlyArray1<'py, i64>, max_distance: Option<f64>, method: &str,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let m = self::method(method)?;
-        let md = max_dist(max_distance)?;
-        let src = vertex_ids(&sources, self.inner.n_vertices(), "sources")?;
+        let (src, md, m) = self.query(&sources, max_distance, method)?;
         if src.is_empty() {
             return Err(value_err("sources is empty"));
         }
@@ -106,17 +89,10 @@ impl GeodesicSolver {
 
     #[pyo3(signature = (sources, max_distance=None, method="fmm"))]
     fn distance_matrix<'py>(
-        &self,
-        py: Python<'py>,
-        sources: PyReadonlyArray1<'py, i64>,
-        max_distance: Option<f64>,
-        method: &str,
+        &self, py: Python<'py>, sources: PyReadonlyArray1<'py, i64>, max_distance: Option<f64>, method: &str,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let m = self::method(method)?;
-        let md = max_dist(max_distance)?;
-        let n = self.inner.n_vertices();
-        let src = vertex_ids(&sources, n, "sources")?;
-        let ns = src.len();
+        let (src, md, m) = self.query(&sources, max_distance, method)?;
+        let (ns, n) = (src.len(), self.inner.n_vertices());
         let s = self.inner.clone();
         let d = run(py, "GeodesicSolver.distance_matrix", move || s.distance_matrix(&src, md, m))?;
         let d = ndarray::Array2::from_shape_vec((ns, n), d).expect("shape");
@@ -125,20 +101,22 @@ impl GeodesicSolver {
 
     /// Finger Print descriptor (C, R) of the given centre vertices and radii (mm).
     fn fingerprint<'py>(
-        &self,
-        py: Python<'py>,
-        centers: PyReadonlyArray1<'py, i64>,
-        radii: PyReadonlyArray1<'py, f64>,
+        &self, py: Python<'py>, centers: PyReadonlyArray1<'py, i64>, radii: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let c = vertex_ids(&centers, self.inner.n_vertices(), "centers")?;
-        let r = check_radii(&radii)?;
-        let (nc, nr) = (c.len(), r.len());
         let s = self.inner.clone();
-        let out = run(py, "GeodesicSolver.fingerprint", move || {
-            crate::fingerprint::fingerprint(&s, &c, &r)
-        })?;
-        let out = ndarray::Array2::from_shape_vec((nc, nr), out).expect("shape");
-        Ok(out.into_pyarray(py))
+        fingerprint_array(py, s.n_vertices(), &centers, &radii, "GeodesicSolver.fingerprint", move |c, r| {
+            Ok(crate::fingerprint::fingerprint(&s, c, r))
+        })
+    }
+}
+
+impl GeodesicSolver {
+    /// The (sources, max_distance, method) of a distance query, validated.
+    fn query(&self, sources: &PyReadonlyArray1<'_, i64>, max_distance: Option<f64>, method: &str) -> PyResult<(Vec<u32>, f64, Method)> {
+        let m = self::method(method)?;
+        let md = max_dist(max_distance)?;
+        let src = vertex_ids(sources, self.inner.n_vertices(), "sources")?;
+        Ok((src, md, m))
     }
 }
 

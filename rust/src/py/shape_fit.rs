@@ -8,6 +8,13 @@ use pyo3::types::PyDict;
 use super::util::{ids, index_rows, points3, run, value_err};
 use crate::shape_fit::{self as core_fit, Adjacency, Correspondences, ScanTarget, ShapeFitOptions, Weights};
 
+/// `d[name] = s.name` for each field name, in order.
+macro_rules! set_fields {
+    ($d:expr, $s:expr; $($field:ident),+) => {
+        $($d.set_item(stringify!($field), $s.$field)?;)+
+    };
+}
+
 fn anchors(anchor_ids: &PyReadonlyArray1<i64>, pts: &PyReadonlyArray2<f64>, n: usize) -> PyResult<Vec<(usize, [f64; 3])>> {
     let p = points3(pts, "anchor_points")?;
     let n_ids = anchor_ids.as_array().len();
@@ -31,19 +38,10 @@ fn nonneg(v: f64, name: &str) -> PyResult<f64> {
 #[pyo3(signature = (x, points, edges, targets, normals, weights, anchor_ids, anchor_points, w_data, w_smooth, w_rigid, w_landmark))]
 #[allow(clippy::too_many_arguments)]
 fn shape_fit_energy<'py>(
-    py: Python<'py>,
-    x: PyReadonlyArray2<'py, f64>,
-    points: PyReadonlyArray2<'py, f64>,
-    edges: PyReadonlyArray2<'py, i64>,
-    targets: PyReadonlyArray2<'py, f64>,
-    normals: PyReadonlyArray2<'py, f64>,
-    weights: PyReadonlyArray1<'py, f64>,
-    anchor_ids: PyReadonlyArray1<'py, i64>,
-    anchor_points: PyReadonlyArray2<'py, f64>,
-    w_data: f64,
-    w_smooth: f64,
-    w_rigid: f64,
-    w_landmark: f64,
+    py: Python<'py>, x: PyReadonlyArray2<'py, f64>, points: PyReadonlyArray2<'py, f64>, edges: PyReadonlyArray2<'py, i64>,
+    targets: PyReadonlyArray2<'py, f64>, normals: PyReadonlyArray2<'py, f64>, weights: PyReadonlyArray1<'py, f64>,
+    anchor_ids: PyReadonlyArray1<'py, i64>, anchor_points: PyReadonlyArray2<'py, f64>,
+    w_data: f64, w_smooth: f64, w_rigid: f64, w_landmark: f64,
 ) -> PyResult<(f64, f64, f64, f64, f64, Bound<'py, PyArray2<f64>>)> {
     let p = points3(&points, "points")?;
     let n = p.len();
@@ -96,30 +94,12 @@ fn shape_fit_energy<'py>(
     precondition))]
 #[allow(clippy::too_many_arguments)]
 fn shape_fit<'py>(
-    py: Python<'py>,
-    template_vertices: PyReadonlyArray2<'py, f64>,
-    template_faces: PyReadonlyArray2<'py, i64>,
-    scan_vertices: PyReadonlyArray2<'py, f64>,
-    scan_normals: PyReadonlyArray2<'py, f64>,
-    scan_is_boundary: PyReadonlyArray1<'py, bool>,
-    anchor_ids: PyReadonlyArray1<'py, i64>,
-    anchor_points: PyReadonlyArray2<'py, f64>,
-    w_data: f64,
-    w_smooth: f64,
-    w_rigid: f64,
-    relax_factor: f64,
-    n_levels: usize,
-    max_icp: usize,
-    relax_tol: f64,
-    max_iter: usize,
-    rel_tol: f64,
-    memory: usize,
-    normal_angle_deg: f64,
-    max_distance: f64,
-    reject_boundary: bool,
-    w_landmark: f64,
-    template_weight: Option<PyReadonlyArray1<'py, f64>>,
-    precondition: bool,
+    py: Python<'py>, template_vertices: PyReadonlyArray2<'py, f64>, template_faces: PyReadonlyArray2<'py, i64>,
+    scan_vertices: PyReadonlyArray2<'py, f64>, scan_normals: PyReadonlyArray2<'py, f64>, scan_is_boundary: PyReadonlyArray1<'py, bool>,
+    anchor_ids: PyReadonlyArray1<'py, i64>, anchor_points: PyReadonlyArray2<'py, f64>,
+    w_data: f64, w_smooth: f64, w_rigid: f64, relax_factor: f64, n_levels: usize, max_icp: usize, relax_tol: f64,
+    max_iter: usize, rel_tol: f64, memory: usize, normal_angle_deg: f64, max_distance: f64, reject_boundary: bool,
+    w_landmark: f64, template_weight: Option<PyReadonlyArray1<'py, f64>>, precondition: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>, Vec<Bound<'py, PyDict>>)> {
     let tv = points3(&template_vertices, "template_vertices")?;
     let n = tv.len();
@@ -192,19 +172,8 @@ fn shape_fit<'py>(
     let mut solves = Vec::with_capacity(res.solves.len());
     for s in &res.solves {
         let d = PyDict::new(py);
-        d.set_item("level", s.level)?;
-        d.set_item("w_smooth", s.w_smooth)?;
-        d.set_item("w_rigid", s.w_rigid)?;
-        d.set_item("energy", s.energy)?;
-        d.set_item("e_data", s.e_data)?;
-        d.set_item("e_smooth", s.e_smooth)?;
-        d.set_item("e_rigid", s.e_rigid)?;
-        d.set_item("e_landmark", s.e_landmark)?;
-        d.set_item("n_valid", s.n_valid)?;
-        d.set_item("iterations", s.iterations)?;
-        d.set_item("evaluations", s.evaluations)?;
-        d.set_item("seconds_correspond", s.seconds_correspond)?;
-        d.set_item("seconds_solve", s.seconds_solve)?;
+        set_fields!(d, s; level, w_smooth, w_rigid, energy, e_data, e_smooth, e_rigid, e_landmark, n_valid, iterations,
+            evaluations, seconds_correspond, seconds_solve);
         solves.push(d);
     }
     Ok((verts, tr, solves))
@@ -216,21 +185,8 @@ fn shape_fit<'py>(
 fn shape_fit_default_options(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let o = ShapeFitOptions::default();
     let d = PyDict::new(py);
-    d.set_item("w_data", o.w_data)?;
-    d.set_item("w_smooth", o.w_smooth)?;
-    d.set_item("w_rigid", o.w_rigid)?;
-    d.set_item("relax_factor", o.relax_factor)?;
-    d.set_item("n_levels", o.n_levels)?;
-    d.set_item("max_icp", o.max_icp)?;
-    d.set_item("relax_tol", o.relax_tol)?;
-    d.set_item("max_iter", o.max_iter)?;
-    d.set_item("rel_tol", o.rel_tol)?;
-    d.set_item("memory", o.memory)?;
-    d.set_item("normal_angle_deg", o.normal_angle_deg)?;
-    d.set_item("max_distance", o.max_distance)?;
-    d.set_item("reject_boundary", o.reject_boundary)?;
-    d.set_item("w_landmark", o.w_landmark)?;
-    d.set_item("precondition", o.precondition)?;
+    set_fields!(d, o; w_data, w_smooth, w_rigid, relax_factor, n_levels, max_icp, relax_tol, max_iter, rel_tol, memory,
+        normal_angle_deg, max_distance, reject_boundary, w_landmark, precondition);
     Ok(d)
 }
 

@@ -1,7 +1,7 @@
-//! Shared helpers for the bindings: running a kernel, errors, and the one validator of
+//! Shared helpers for the bindings: running a kernel (`run`, `on_mesh`), errors, and the one validator of
 //! (N, 3) vertex and (M, K) index arrays every binding uses.
 
-use numpy::ndarray::Array2;
+use numpy::ndarray::{Array1, Array2};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -101,6 +101,20 @@ pub fn mesh(v: &PyReadonlyArray2<'_, f64>, f: &PyReadonlyArray2<'_, i64>, what: 
     }
     let ff = faces(f, vv.len(), what)?;
     Ok((vv, ff))
+}
+
+/// Validate (V, F) as `mesh` does, then run `kernel` on it as `run` does; `what` names both.
+pub fn on_mesh<R: Send>(
+    py: Python<'_>, vertices: &PyReadonlyArray2<'_, f64>, faces: &PyReadonlyArray2<'_, i64>, what: &str,
+    kernel: impl FnOnce(&[Vec3], &[Face]) -> R + Send,
+) -> PyResult<R> {
+    let (v, f) = mesh(vertices, faces, what)?;
+    run(py, what, || kernel(&v, &f))
+}
+
+/// Vertex ids -> an int64 array.
+pub fn ids_to_array(x: Vec<usize>) -> Array1<i64> {
+    x.into_iter().map(|i| i as i64).collect()
 }
 
 /// Points -> an (N, 3) array.
