@@ -785,3 +785,20 @@ def test_units_error_names_the_file(tmp_path):
     with pytest.raises(UnitsError, match="cannot infer units") as e:
         io.load_mesh(p)
     assert str(p) in one_line(e)
+
+
+def test_wrl_exponential_use_expansion_is_refused_quickly(tmp_path):
+    """'Billion laughs': 40 lines of DEF Lk Group { children [ USE Lk-1 USE Lk-1 ] } = 2^39 shapes
+    (was a hang)."""
+    import time
+
+    lines = ["#VRML V2.0 utf8", "DEF L0 Group { children [ " + TRI_WRL.split("\n", 1)[1] + " ] }"]
+    lines += [f"DEF L{k} Group {{ children [ USE L{k - 1} USE L{k - 1} ] }}" for k in range(1, 40)]
+    t = time.perf_counter()
+    with pytest.raises(MeshFileError, match="once DEF/USE are expanded") as e:
+        load_bytes(tmp_path, "laughs.wrl", "\n".join(lines))
+    one_line(e)
+    assert time.perf_counter() - t < 5
+    # a few USEs are fine: L0..L3 at the top level = 1 + 2 + 4 + 8 copies of the triangle
+    m = load_bytes(tmp_path, "few.wrl", "\n".join(lines[:5]))
+    assert m.n_faces == 1 and m.meta["n_duplicate_faces_dropped"] == 1 + 2 + 4 + 8 - 1

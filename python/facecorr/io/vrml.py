@@ -27,6 +27,9 @@ __all__ = ["read_wrl", "write_wrl_text"]
 
 _TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|#[^\n]*|[{}\[\]]|[^\s{}\[\],"#]+|,')
 _MAX_DEPTH = 100  # node nesting (real files: < 10)
+_MAX_VISITS = 100_000  # node instances after DEF/USE expansion
+_MAX_FACE_SETS = 10_000  # IndexedFaceSet instances after DEF/USE expansion
+_MAX_VERTICES = 100_000_000  # vertices of all instances (a face scan: ~1e5)
 _SCALAR_WORDS = {"TRUE", "FALSE", "NULL"}
 _NONFINITE = {"nan", "inf", "infinity"}  # not VRML, but printf writes them; reported as NaN/inf
 # A bracketed list without nodes, strings or comments (the big point / coordIndex arrays).
@@ -346,13 +349,23 @@ def _trs(vec, h) -> np.ndarray:
     return T @ C @ R @ SR @ S @ np.linalg.inv(SR) @ np.linalg.inv(C)
 
 
-def _collect_face_sets(nodes, p: _WrlParser, M: np.ndarray, out: list, depth: int = 0) -> None:
-    """Append (IndexedFaceSet node, 4x4 world matrix M) of every face set under ``nodes`` to ``out``."""
+def _collect_face_sets(nodes, p: _WrlParser, M: np.ndarray, out: list, depth: int = 0,
+                       visits: list | None = None) -> None:
+    """Append (IndexedFaceSet node, 4x4 world matrix M) of every face set under ``nodes`` to ``out``.
+
+    At most ``_MAX_VISITS`` node instances and ``_MAX_FACE_SETS`` face sets (USE of USE of ... can
+    expand exponentially: a 40-line file would take forever)."""
+    if visits is None:
+        visits = [0]
     if depth > 100:
         raise p.error("nodes nested more than 100 deep (a USE cycle?)")
     for node in nodes:
         if not isinstance(node, _Node):
             continue
+        visits[0] += 1
+        if visits[0] > _MAX_VISITS or len(out) > _MAX_FACE_SETS:
+            raise MeshFileError(f"{p.name}: more than {_MAX_VISITS} nodes or {_MAX_FACE_SETS} "
+                                f"IndexedFaceSets once DEF/USE are expanded (USE of USE ...?)")
         if node.type == "IndexedFaceSet":
             out.append((node, M))
             continue
@@ -361,13 +374,13 @@ def _collect_face_sets(nodes, p: _WrlParser, M: np.ndarray, out: list, depth: in
         if node.type == "Shape":
             g = node.fields.get("geometry")
             if isinstance(g, _Node):
-                _collect_face_sets([g], p, here, out, depth + 1)
+                _collect_face_sets([g], p, here, out, depth + 1, visits)
         for key in ("children", "level"):  # Group/Transform/Anchor/Collision/Billboard, LOD
             kids = node.fields.get(key)
             if isinstance(kids, _Node):
                 kids = [kids]
             if isinstance(kids, list):
-                _collect_face_sets(kids, p, here, out, depth + 1)
+                _collect_face_sets(kids, p, here, out, depth + 1, visits)
                 if key == "level":
                     break
 
@@ -424,6 +437,8 @@ def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
         Vs.append(V)
         Fs.append(F + off)
         off += len(V)
+        if off > _MAX_VERTICES:
+            raise MeshFileError(f"{path}: more than {_MAX_VERTICES} vertices once DEF/USE are expanded")
     if not Vs:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     return np.concatenate(Vs), np.concatenate(Fs)
