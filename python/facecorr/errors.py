@@ -32,3 +32,8 @@ class LandmarkError(FacecorrError):
 
 class RegistrationError(FacecorrError):
     """The template could not be fitted to the scan."""
+
+
+class OutputError(FacecorrError, OSError):
+    """An output cannot be written there: a folder, a parent that is a file, no permission, two
+    outputs (or an output and an input) naming the same file, a failed write."""

@@ -29,6 +29,9 @@ def cmd_landmarks(args) -> int:
     from ..io import load_mesh
     from ..landmarks.predict import predict_landmarks
 
+    from ..io.atomic import check_output_paths
+
+    check_output_paths([("--json", args.json)], inputs=[args.scan])
     mesh = load_mesh(args.scan, units=args.units)
     result = predict_landmarks(mesh, model=args.model)
     write_json(args.json, landmarks_json(result, mesh))

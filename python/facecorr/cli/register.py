@@ -46,20 +46,62 @@ def cmd_register(args) -> int:
     return 0
 
 
-def cmd_batch(args) -> int:
+def _read_failures(path: Path) -> list:
+    """The rows of an earlier run's failures.json ([] if none or unreadable)."""
+    import json
+
+    try:
+        rows = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return []
+    return [r for r in rows if isinstance(r, dict) and "scan" in r] if isinstance(rows, list) else []
+
+
+def _write_failures(path: Path, rows: list) -> None:
+    """failures.json holds exactly ``rows``; none: the file is removed."""
     from ..io.atomic import write_json
-    from ..pipeline.batch import plan_batch, register_job
+
+    if rows:
+        write_json(path, rows)
+    else:
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def cmd_batch(args) -> int:
+    from ..io.atomic import remove_stale_temps
+    from ..pipeline.batch import FAILURES_NAME, plan_batch, register_job
     from ..threads import process_iter
 
     dst = Path(args.output_dir)
     jobs, skipped = plan_batch(Path(args.input_dir), dst, overwrite=args.overwrite, png=args.png, units=args.units)
+    failures_path = dst / FAILURES_NAME
+    pending = {str(j[0]): j for j in jobs}
+    # an earlier run's failures stay recorded until their scan is tried again (a scan with
+    # results is not a failure: it is no job and its old row is dropped)
+    earlier = [r for r in _read_failures(failures_path) if r["scan"] in pending]
     rows = []
-    failures_path = dst / "failures.json"
-    for row in process_iter(register_job, jobs, workers=max(1, args.workers), desc="registering", ordered=False):
-        rows.append(row)
-        failed = [r for r in rows if not r["ok"]]
-        if failed:
-            write_json(failures_path, failed)
+
+    def failures() -> list:
+        done = {r["scan"] for r in rows}
+        return [r for r in earlier if r["scan"] not in done] + [r for r in rows if not r["ok"]]
+
+    gen = process_iter(register_job, jobs, workers=max(1, args.workers), desc="registering", ordered=False)
+    try:
+        for row in gen:
+            rows.append(row)
+            if not row["ok"]:
+                _write_failures(failures_path, failures())
+    finally:
+        gen.close()  # on Ctrl-C / SIGTERM: queued jobs cancelled, running workers stopped
+        for job in jobs:
+            for p in job[1:4]:
+                if p is not None:
+                    remove_stale_temps(p)
+        if failures() or failures_path.exists():
+            _write_failures(failures_path, failures())
     failed = [r for r in rows if not r["ok"]]
     done = len(rows) - len(failed)
     print(f"{done} registered, {skipped} already done, {len(failed)} failed"

@@ -16,53 +16,159 @@ SCAN_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".wrl")
 
 
 def read_landmarks_json(path, mesh) -> dict:
-    """Landmarks from a JSON ({"units": u, "landmarks": {name: xyz}}) converted to mm."""
+    """Landmarks from a JSON ({"units": u, "landmarks": {name: xyz}}) converted to mm.
+
+    Checked: all 8 landmarks present, each 3 finite numbers, the units known. Raises a one-line
+    LandmarkError naming the file (and the landmark)."""
+    import math
+
     from ..errors import LandmarkError
     from ..io import UNIT_TO_MM
+    from ..names import LANDMARK_NAMES
 
     try:
         data = json.loads(Path(path).read_text())
-        lms = data["landmarks"]
-        factor = UNIT_TO_MM[data["units"]] if "units" in data else mesh.to_mm
-        return {k: [float(c) * factor for c in v] for k, v in lms.items()}
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise LandmarkError(f"{path}: not a landmarks JSON ({type(e).__name__}: {e})") from None
+    except (OSError, ValueError) as e:
+        msg = e.strerror if isinstance(e, OSError) and e.strerror else str(e).splitlines()[0]
+        raise LandmarkError(f"{path}: not a landmarks JSON ({type(e).__name__}: {msg})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("landmarks"), dict):
+        raise LandmarkError(f"{path}: not a landmarks JSON (needs an object with \"landmarks\": {{name: [x, y, z]}})")
+    lms = data["landmarks"]
+    if "units" in data:
+        if not isinstance(data["units"], str) or data["units"] not in UNIT_TO_MM:
+            raise LandmarkError(f"{path}: unknown units {data['units']!r} (known: {', '.join(UNIT_TO_MM)})")
+        factor = UNIT_TO_MM[data["units"]]
+    else:
+        factor = mesh.to_mm
+    missing = [n for n in LANDMARK_NAMES if n not in lms]
+    if missing:
+        raise LandmarkError(f"{path}: landmarks missing: {', '.join(missing)}")
+    out = {}
+    for n in LANDMARK_NAMES:
+        v = lms[n]
+        ok = (isinstance(v, list) and len(v) == 3
+              and all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in v))
+        if not ok:
+            shown = json.dumps(v)
+            shown = shown if len(shown) <= 60 else shown[:57] + "..."
+            raise LandmarkError(f"{path}: landmark {n} must be 3 finite numbers [x, y, z], got {shown}")
+        out[n] = [float(c) * factor for c in v]
+    return out
+
+
+def check_register_outputs(scan_path, out_mesh, out_json=None, png=None) -> None:
+    """Refuse, before any work, outputs that cannot be written (OutputError / MeshFileError naming
+    the path): an unknown mesh extension, an output naming the scan or another output, a folder,
+    a parent that is a file, a folder without write permission."""
+    from ..errors import OutputError
+    from ..io.atomic import check_output_paths
+    from ..io.load import format_of
+
+    format_of(Path(out_mesh))
+    if png is not None and Path(png).suffix.lower() not in _PICTURE_SUFFIXES:
+        raise OutputError(f"{png}: unknown picture format {Path(png).suffix or '(no extension)'!r} "
+                          f"(supported: {', '.join(_PICTURE_SUFFIXES)})")
+    outputs = [("-o", out_mesh)] + ([("--json", out_json)] if out_json else []) + ([("--png", png)] if png else [])
+    check_output_paths(outputs, inputs=[scan_path])
+
+
+#: Picture formats ``--png`` can write (matplotlib's, without extra dependencies).
+_PICTURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
 def register_file(scan_path, out_mesh, out_json=None, png=None, units="auto", landmarks_json=None):
-    """Load, register and write one scan. Returns the Result (raises FacecorrError on bad input)."""
+    """Load, register and write one scan. Returns the Result (raises FacecorrError on bad input).
+
+    The outputs are checked before the work and written as a group: all of them or none."""
     from ..io import load_mesh
     from ..render import plot_registration
     from ..template import load_template
     from .correspond import correspond
 
+    check_register_outputs(scan_path, out_mesh, out_json, png)
     mesh = load_mesh(scan_path, units=units)
     lms = read_landmarks_json(landmarks_json, mesh) if landmarks_json else None
     result = correspond(mesh, landmarks=lms)
-    result.save(out_mesh, out_json)
+    also = []
     if png:
-        plot_registration(mesh, result, png, load_template(), title=Path(scan_path).name)
+        also.append((png, lambda tmp: plot_registration(mesh, result, tmp, load_template(), title=Path(scan_path).name)))
+    result.save(out_mesh, out_json, also=also, inputs=[scan_path])
     return result
+
+
+#: The batch's own record in OUTPUT_DIR.
+FAILURES_NAME = "failures.json"
+
+
+def _list_scans(src: Path, dst: Path) -> list:
+    """Scan files under ``src``, skipping ``dst`` and everything under it (an output folder inside
+    the input folder is not input)."""
+    import os
+
+    dst_key = os.path.realpath(dst)
+    scans = []
+    for root, dirs, files in os.walk(src):
+        dirs[:] = sorted(d for d in dirs if os.path.realpath(os.path.join(root, d)) != dst_key)
+        for f in files:
+            p = Path(root) / f
+            if p.suffix.lower() in SCAN_SUFFIXES and p.is_file():
+                scans.append(p)
+    return sorted(scans)
+
+
+def result_paths(src: Path, dst: Path, scan: Path, png: bool = False) -> list:
+    """The result files of ``scan``: [mesh, json] (+ png)."""
+    out_mesh = dst / scan.relative_to(src).with_suffix(".ply")
+    return [out_mesh, out_mesh.with_suffix(".json")] + ([out_mesh.with_suffix(".png")] if png else [])
 
 
 def plan_batch(src: Path, dst: Path, *, overwrite: bool = False, png: bool = False, units: str = "auto"):
     """(jobs, n_skipped): one job ``(scan, out_mesh, out_json, png, units)`` per scan under ``src``
-    without both result files under ``dst`` (same relative path, .ply + .json)."""
-    from ..errors import FacecorrError
+    without both result files under ``dst`` (same relative path, .ply + .json).
 
+    Refused (FacecorrError): ``src`` not a folder, ``dst`` an existing file or ``src`` itself, no
+    scans, two scans with the same result (``face.ply`` and ``face.wrl``). Temporary files a killed
+    run left beside the results are removed."""
+    import os
+
+    from ..errors import FacecorrError, OutputError
+    from ..io.atomic import _existing_ancestor, remove_stale_temps
+
+    src, dst = Path(src), Path(dst)
     if not src.is_dir():
         raise FacecorrError(f"{src}: not a folder")
-    scans = sorted(p for p in src.rglob("*") if p.suffix.lower() in SCAN_SUFFIXES and p.is_file())
+    if os.path.lexists(dst) and not dst.is_dir():
+        raise OutputError(f"{dst}: exists and is not a folder (the output folder)")
+    if os.path.realpath(dst) == os.path.realpath(src):
+        raise OutputError(f"{dst}: the output folder must not be the input folder")
+    anc = dst if dst.is_dir() else _existing_ancestor(dst)
+    if not anc.is_dir():
+        raise OutputError(f"{dst}: cannot create the output folder: {anc} is a file, not a folder")
+    if not os.access(anc, os.W_OK | os.X_OK):
+        raise OutputError(f"{dst}: cannot write there: no permission to write in {anc}")
+    scans = _list_scans(src, dst)
     if not scans:
         raise FacecorrError(f"{src}: no scan files ({', '.join(SCAN_SUFFIXES)})")
+    owner = {}
+    failures = os.path.realpath(dst / FAILURES_NAME)
+    for s in scans:
+        out_mesh, out_json = result_paths(src, dst, s)
+        if os.path.realpath(out_json) == failures:
+            raise FacecorrError(f"{s}: its result {out_json} would clash with the batch's {FAILURES_NAME}: rename the scan")
+        if out_mesh in owner:
+            raise FacecorrError(f"{owner[out_mesh]} and {s} would both be registered to {out_mesh} "
+                                "(same name, other format): rename one or move it to another folder")
+        owner[out_mesh] = s
     jobs, skipped = [], 0
     for s in scans:
-        out_mesh = dst / s.relative_to(src).with_suffix(".ply")
-        out_json = out_mesh.with_suffix(".json")
+        out_mesh, out_json, *rest = result_paths(src, dst, s, png=True)
+        for p in (out_mesh, out_json, *rest):
+            remove_stale_temps(p)
         if not overwrite and out_mesh.exists() and out_json.exists():
             skipped += 1
             continue
-        jobs.append((s, out_mesh, out_json, out_mesh.with_suffix(".png") if png else None, units))
+        jobs.append((s, out_mesh, out_json, rest[0] if png else None, units))
+    remove_stale_temps(dst / FAILURES_NAME)
     return jobs, skipped
 
 

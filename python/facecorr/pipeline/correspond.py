@@ -67,15 +67,36 @@ class Result:
             "flags": list(self.flags),
         }
 
-    def save(self, mesh_path, json_path=None) -> None:
-        """Write the registered template (scan's units) and optionally the JSON, each atomically."""
-        from ..io.atomic import atomic_path, write_json
-        from ..io import save_mesh
+    def save(self, mesh_path, json_path=None, *, also=(), inputs=()) -> None:
+        """Write the registered template (scan's units) and optionally the JSON, as a group: both
+        are written or neither (nothing of them is left on any error).
 
-        with atomic_path(mesh_path) as tmp:
-            save_mesh(tmp, (self.vertices / self.to_mm, self.faces))
+        ``also``: more files of the same group, pairs ``(path, writer)`` with ``writer(tmp_path)``
+        writing the file (e.g. the PNG); ``inputs``: paths the outputs must not overwrite.
+        Raises OutputError (or MeshFileError for an unknown mesh format) naming the given path.
+        """
+        import json
+        from pathlib import Path
+
+        from ..io import save_mesh
+        from ..io.atomic import atomic_paths, check_output_paths
+        from ..io.load import format_of
+
+        mesh_path = Path(mesh_path)
+        format_of(mesh_path)  # an unknown mesh format, named by the user's path
+        outputs = [("the mesh", mesh_path)]
         if json_path is not None:
-            write_json(json_path, self.to_json())
+            outputs.append(("the JSON", Path(json_path)))
+        outputs += [("an output", Path(p)) for p, _ in also]
+        check_output_paths(outputs, inputs=inputs)
+        with atomic_paths(*(p for _, p in outputs)) as tmps:
+            save_mesh(tmps[0], (self.vertices / self.to_mm, self.faces))
+            k = 1
+            if json_path is not None:
+                tmps[1].write_text(json.dumps(self.to_json(), indent=2) + "\n")
+                k = 2
+            for (_, writer), tmp in zip(also, tmps[k:]):
+                writer(tmp)
 
 
 @dataclass(frozen=True)
