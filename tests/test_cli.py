@@ -176,3 +176,223 @@ def test_train_identity_writes_a_loadable_basis(tmp_path):
     bad = run_cli("train-identity", tmp_path, "--out", tmp_path / "none.npz")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
     assert "not a synthetic database" in bad.stderr and not (tmp_path / "none.npz").exists()
+
+
+# --- outputs: checked before the work, written all or nothing; one-line errors -------------------
+
+def _one_error_line(stderr):
+    lines = [l for l in stderr.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("facecorr: error:"), stderr
+    assert "Traceback" not in stderr
+    return lines[0]
+
+
+def _listing(d):
+    return sorted(str(p.relative_to(d)) for p in d.rglob("*"))
+
+
+@pytest.mark.parametrize("args,what", [
+    (["-o", "adir"], "is a folder"),
+    (["-o", "r.xyz"], "unknown mesh format"),
+    (["-o", "scan.ply"], "overwrite the input"),
+    (["-o", "r.ply", "--json", "r.ply"], "different files"),
+    (["-o", "r.ply", "--png", "r.ply"], "different files"),
+    (["-o", "r.ply", "--json", "afile/r.json"], "is a file, not a folder"),
+    (["-o", "afile/sub/r.ply"], "is a file, not a folder"),
+    (["-o", "r.ply", "--json", "adir"], "is a folder"),
+    (["-o", "r.ply", "--png", "r.txt"], "unknown picture format"),
+])
+def test_register_bad_outputs_refused_before_the_work(tmp_path, args, what):
+    """Refused in well under the registration's time (the scan is not even read), nothing written."""
+    (tmp_path / "scan.ply").write_bytes(b"not read before the outputs are checked")
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "afile").write_text("a file")
+    before = _listing(tmp_path)
+    r = run_cli("register", "scan.ply", *args, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    line = _one_error_line(r.stderr)
+    assert what in line, line
+    assert _listing(tmp_path) == before
+
+
+def _fake_correspond(mesh, landmarks=None, **kw):
+    """A Result shaped like the real one, instantly (these tests are about files, not fitting)."""
+    from facecorr.names import LANDMARK_NAMES
+    from facecorr.pipeline.correspond import Result
+    from facecorr.template import load_template
+
+    t = load_template()
+    z = {n: np.zeros(3) for n in LANDMARK_NAMES}
+    return Result(vertices=np.asarray(t.vertices, float), faces=np.asarray(t.faces), landmarks=z,
+                  landmarks_registered=z, confidence={n: 1.0 for n in LANDMARK_NAMES}, expression_weights={},
+                  mhd=0.1, timings_s={"total": 0.0}, to_mm=mesh.to_mm, units=mesh.units)
+
+
+@pytest.fixture
+def fast_register(monkeypatch):
+    import importlib
+
+    # the module (facecorr.pipeline re-exports the function under the same name)
+    corr = importlib.import_module("facecorr.pipeline.correspond")
+    monkeypatch.setattr(corr, "correspond", _fake_correspond)
+
+
+def _main(capsys, *args):
+    from facecorr.cli import main
+
+    rc = main([str(a) for a in args])
+    return rc, capsys.readouterr()
+
+
+def test_register_writes_all_outputs_or_none(tmp_path, one_scan, fast_register, monkeypatch, capsys):
+    import facecorr.render as render
+
+    scan = one_scan["scan"]
+    out = tmp_path / "o"
+    # the picture fails: neither the mesh nor the JSON stays, no temporary file
+    def bad_png(*a, **k):
+        raise OSError(28, "No space left on device", str(a[2]))
+    monkeypatch.setattr(render, "plot_registration", bad_png)
+    rc, cap = _main(capsys, "register", scan, "-o", out / "r.ply", "--json", out / "r.json", "--png", out / "r.png")
+    assert rc == 2
+    line = _one_error_line(cap.err)
+    assert str(out / "r.png") in line and "No space" in line and "/.r." not in line, line
+    assert not out.exists(), "nothing (not even the folder made for the outputs) may stay"
+    # the mesh writer fails with an OSError naming its temporary file: the message names r.ply
+    import facecorr.io as fio
+    real_save = fio.save_mesh
+    monkeypatch.setattr(fio, "save_mesh", lambda p, *a, **k: (_ for _ in ()).throw(OSError(13, "Permission denied", str(p))))
+    tmp_path.joinpath("r.json").write_text("old")
+    rc, cap = _main(capsys, "register", scan, "-o", tmp_path / "r.ply", "--json", tmp_path / "r.json")
+    assert rc == 2
+    line = _one_error_line(cap.err)
+    assert str(tmp_path / "r.ply") in line and "/.r." not in line, line
+    assert (tmp_path / "r.json").read_text() == "old" and not (tmp_path / "r.ply").exists()
+    assert not list(tmp_path.glob(".*"))
+    # a folder without write permission (simulated: the tests may run as root) is refused first
+    monkeypatch.setattr(fio, "save_mesh", real_save)
+    import facecorr.io.atomic as atomic
+    monkeypatch.setattr(atomic.os, "access", lambda p, mode: False)
+    rc, cap = _main(capsys, "register", scan, "-o", tmp_path / "ro" / "r.ply")
+    assert rc == 2 and "no permission" in _one_error_line(cap.err)
+    monkeypatch.undo()
+    # and when everything can be written, everything is
+    import importlib
+    monkeypatch.setattr(importlib.import_module("facecorr.pipeline.correspond"), "correspond", _fake_correspond)
+    rc, cap = _main(capsys, "register", scan, "-o", out / "r.ply", "--json", out / "r.json", "--png", out / "r.png")
+    assert rc == 0, cap.err
+    assert sorted(p.name for p in out.iterdir()) == ["r.json", "r.ply", "r.png"]
+
+
+def test_result_save_raises_facecorr_errors_naming_the_path(tmp_path):
+    from facecorr.errors import FacecorrError, OutputError
+    from facecorr.io import load_mesh
+
+    (tmp_path / "afile").write_text("x")
+    mesh = load_mesh(Path_of_tiny_scan(tmp_path))
+    res = _fake_correspond(mesh)
+    with pytest.raises(OutputError, match="afile is a file"):
+        res.save(tmp_path / "afile" / "r.ply")
+    with pytest.raises(FacecorrError, match="r.json: is a folder"):
+        (tmp_path / "r.json").mkdir()
+        res.save(tmp_path / "r.ply", tmp_path / "r.json")
+    assert not (tmp_path / "r.ply").exists()
+    res.save(tmp_path / "ok.ply", tmp_path / "ok.json")
+    assert json.loads((tmp_path / "ok.json").read_text())["mhd"] == pytest.approx(0.1 / mesh.to_mm)
+
+
+def Path_of_tiny_scan(d):
+    from facecorr.io import save_mesh
+
+    p = d / "tiny.ply"
+    v = np.array([[0, 0, 0], [100, 0, 0], [0, 120, 0], [0, 0, 80.0]])
+    save_mesh(p, (v, np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])))
+    return p
+
+
+def test_usage_errors_are_one_line(tmp_path):
+    for args in (["register", "s.ply", "-o", "r.ply", "--units", "furlong"], ["register"], ["nosuchcommand"],
+                 ["eval", "nosuchthing"], ["batch", "a", "b", "--workers", "two"]):
+        r = run_cli(*args, cwd=tmp_path)
+        assert r.returncode == 2, (args, r.stderr)
+        _one_error_line(r.stderr)
+    r = run_cli("register", "s.ply", "-o", "r.ply", "--units", "furlong", cwd=tmp_path)
+    assert "furlong" in r.stderr and "--units" in r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("lms,what", [
+    ({"nose_tip": [1.0, 2.0]}, "landmark nose_tip must be 3 finite numbers"),
+    ({"nose_tip": [1.0, "x", 3.0]}, "landmark nose_tip must be 3 finite numbers"),
+    ({"nose_tip": None}, "landmark nose_tip must be 3 finite numbers"),
+    ({"subnasal": "drop"}, "missing: subnasal"),
+    ({"units": "furlong"}, "unknown units 'furlong'"),
+])
+def test_register_bad_landmarks_json(tmp_path, one_scan, lms, what):
+    from facecorr.evaluation import metrics as evaluate
+
+    gt = evaluate.load_ground_truth(one_scan["gt"], load_dense=False)
+    data = {"units": "mm", "landmarks": {k: np.asarray(v).tolist() for k, v in gt["landmarks"].items()}}
+    for k, v in lms.items():
+        if k == "units":
+            data["units"] = v
+        elif v == "drop":
+            del data["landmarks"][k]
+        else:
+            data["landmarks"][k] = v
+    lm = tmp_path / "lm.json"
+    lm.write_text(json.dumps(data))
+    r = run_cli("register", one_scan["scan"], "-o", tmp_path / "r.ply", "--json", tmp_path / "r.json", "--landmarks", lm)
+    assert r.returncode == 2, r.stderr
+    line = _one_error_line(r.stderr)
+    assert str(lm) in line and what in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lm.json"]
+
+
+# --- batch: the folders ---------------------------------------------------------------------------
+
+def test_batch_refuses_bad_folders_and_stem_clashes(tmp_path, one_scan):
+    import shutil
+
+    src = tmp_path / "in"
+    src.mkdir()
+    shutil.copy(one_scan["scan"], src / "face.ply")
+    (tmp_path / "afile").write_text("x")
+    for out, what in ((tmp_path / "afile", "not a folder"), (src, "must not be the input folder"),
+                      (tmp_path / "afile" / "o", "is a file, not a folder")):
+        r = run_cli("batch", src, out)
+        assert r.returncode == 2, r.stderr
+        assert what in _one_error_line(r.stderr)
+    shutil.copy(one_scan["scan"], src / "face.obj")  # any content: refused before reading
+    r = run_cli("batch", src, tmp_path / "out")
+    assert r.returncode == 2
+    line = _one_error_line(r.stderr)
+    assert "face.ply" in line and "face.obj" in line, line
+    assert not (tmp_path / "out").exists()
+
+
+def test_batch_output_inside_input_and_failures_json_stay_current(tmp_path, one_scan, fast_register, capsys):
+    import shutil
+
+    src = tmp_path / "in"
+    src.mkdir()
+    shutil.copy(one_scan["scan"], src / "good.ply")
+    (src / "broken.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\n")
+    out = src / "out"
+    rc, cap = _main(capsys, "batch", src, out, "--workers", "1")
+    assert rc == 2 and "1 registered" in cap.out and "1 failed" in cap.out, cap
+    assert [f["scan"] for f in json.loads((out / "failures.json").read_text())] == [str(src / "broken.ply")]
+    # the outputs inside the input folder are not input; the broken scan is tried again
+    rc, cap = _main(capsys, "batch", src, out, "--workers", "1")
+    assert rc == 2 and "0 registered, 1 already done, 1 failed" in cap.out, cap.out
+    assert not (out / "out").exists()
+    # the broken scan is fixed: a run without failures leaves no stale failures.json
+    shutil.copy(one_scan["scan"], src / "broken.ply")
+    rc, cap = _main(capsys, "batch", src, out, "--workers", "1")
+    assert rc == 0 and "1 registered, 1 already done, 0 failed" in cap.out, cap.out
+    assert not (out / "failures.json").exists()
+    assert sorted(p.name for p in out.iterdir()) == ["broken.json", "broken.ply", "good.json", "good.ply"]
+    # a stale failures.json of scans that now have results is removed even when nothing is to do
+    (out / "failures.json").write_text(json.dumps([{"scan": str(src / "good.ply"), "ok": False, "error": "old"}]))
+    rc, cap = _main(capsys, "batch", src, out, "--workers", "1")
+    assert rc == 0 and not (out / "failures.json").exists()

@@ -64,12 +64,12 @@ def check_register_outputs(scan_path, out_mesh, out_json=None, png=None) -> None
     from ..io.atomic import check_output_paths
     from ..io.load import format_of
 
+    outputs = [("-o", out_mesh)] + ([("--json", out_json)] if out_json else []) + ([("--png", png)] if png else [])
+    check_output_paths(outputs, inputs=[scan_path])
     format_of(Path(out_mesh))
     if png is not None and Path(png).suffix.lower() not in _PICTURE_SUFFIXES:
         raise OutputError(f"{png}: unknown picture format {Path(png).suffix or '(no extension)'!r} "
                           f"(supported: {', '.join(_PICTURE_SUFFIXES)})")
-    outputs = [("-o", out_mesh)] + ([("--json", out_json)] if out_json else []) + ([("--png", png)] if png else [])
-    check_output_paths(outputs, inputs=[scan_path])
 
 
 #: Picture formats ``--png`` can write (matplotlib's, without extra dependencies).

@@ -83,12 +83,12 @@ class Result:
         from ..io.load import format_of
 
         mesh_path = Path(mesh_path)
-        format_of(mesh_path)  # an unknown mesh format, named by the user's path
         outputs = [("the mesh", mesh_path)]
         if json_path is not None:
             outputs.append(("the JSON", Path(json_path)))
         outputs += [("an output", Path(p)) for p, _ in also]
         check_output_paths(outputs, inputs=inputs)
+        format_of(mesh_path)  # an unknown mesh format, named by the user's path
         with atomic_paths(*(p for _, p in outputs)) as tmps:
             save_mesh(tmps[0], (self.vertices / self.to_mm, self.faces))
             k = 1
