@@ -396,3 +396,36 @@ def test_batch_output_inside_input_and_failures_json_stay_current(tmp_path, one_
     (out / "failures.json").write_text(json.dumps([{"scan": str(src / "good.ply"), "ok": False, "error": "old"}]))
     rc, cap = _main(capsys, "batch", src, out, "--workers", "1")
     assert rc == 0 and not (out / "failures.json").exists()
+
+
+def test_atomic_paths_all_or_nothing(tmp_path, monkeypatch):
+    """A group write failing at any step leaves none of its new files and no temporary file."""
+    import os
+
+    import facecorr.io.atomic as atomic
+    from facecorr.errors import OutputError
+
+    with atomic.atomic_paths(tmp_path / "a.ply", tmp_path / "x" / "b.json") as (ta, tb):
+        ta.write_text("a")
+        tb.write_text("b")
+    assert (tmp_path / "a.ply").read_text() == "a" and (tmp_path / "x" / "b.json").read_text() == "b"
+    real, calls = os.replace, []
+
+    def second_rename_fails(src, dst):
+        calls.append(dst)
+        if len(calls) == 2:
+            raise OSError(13, "Permission denied")
+        real(src, dst)
+    monkeypatch.setattr(atomic.os, "replace", second_rename_fails)
+    with pytest.raises(OutputError, match="c.json: cannot write: Permission denied"):
+        with atomic.atomic_paths(tmp_path / "c.ply", tmp_path / "c.json") as (tc, td):
+            tc.write_text("c")
+            td.write_text("d")
+    monkeypatch.undo()
+    with pytest.raises(OutputError, match=r"/y/e.json: cannot write: No space"):
+        with atomic.atomic_paths(tmp_path / "e.ply", tmp_path / "y" / "e.json") as (te, tf):
+            te.write_text("e")
+            raise OSError(28, "No space left on device", str(tf))
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a.ply", "b.json", "x"]
+    (tmp_path / ".a.abcd1234.ply").write_text("left by a killed run")
+    assert atomic.remove_stale_temps(tmp_path / "a.ply") == 1 and (tmp_path / "a.ply").exists()

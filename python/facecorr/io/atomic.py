@@ -171,11 +171,19 @@ def atomic_paths(*paths):
         except OSError as e:
             who = names.get(str(getattr(e, "filename", "")), str(targets[0]))
             raise OutputError(f"{who}: cannot write: {_substitute(e.strerror or str(e), names)}") from None
-        for tmp, path in zip(tmps, targets):
-            current = path
+        existed = [os.path.lexists(p) for p in targets]
+        for i, (tmp, path) in enumerate(zip(tmps, targets)):
             try:
                 os.replace(tmp, path)
             except OSError as e:
+                # (rare: the temporaries sit beside their targets) take back the new files
+                # renamed so far; a replaced older file cannot be restored
+                for done, was_there in zip(targets[:i], existed[:i]):
+                    if not was_there:
+                        try:
+                            os.unlink(done)
+                        except OSError:
+                            pass
                 raise OutputError(f"{path}: cannot write: {e.strerror or e}") from None
     except BaseException:
         for tmp in tmps:
