@@ -429,3 +429,12 @@ def test_atomic_paths_all_or_nothing(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["a.ply", "b.json", "x"]
     (tmp_path / ".a.abcd1234.ply").write_text("left by a killed run")
     assert atomic.remove_stale_temps(tmp_path / "a.ply") == 1 and (tmp_path / "a.ply").exists()
+
+
+def test_landmarks_json_output_checked_first(tmp_path):
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "scan.ply").write_bytes(b"not read")
+    for out, what in (("adir", "is a folder"), ("scan.ply", "overwrite the input")):
+        r = run_cli("landmarks", "scan.ply", "--json", out, cwd=tmp_path)
+        assert r.returncode == 2 and what in _one_error_line(r.stderr), r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "scan.ply"]
