@@ -130,6 +130,12 @@ class Mesh:
         return int(self.components.max()) + 1
 
     @cached_property
+    def component_areas(self) -> np.ndarray:
+        """(C,) area of each connected component (label order of :attr:`components`), mm²."""
+        label = self.components[self.faces[:, 0]]
+        return np.bincount(label, weights=self.face_areas, minlength=self.n_components)
+
+    @cached_property
     def signed_volume(self) -> float:
         """Σ over triangles of (a · (b × c)) / 6, mm³: the volume enclosed with the origin, positive
         when the triangles are wound so that their normals point away from it."""
@@ -137,20 +143,21 @@ class Mesh:
         return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
 
     def centred_outward(self) -> tuple["Mesh", np.ndarray]:
-        """(mesh, offset): this mesh moved so that its bounding box is centred on the origin, with
-        its triangles wound so that the normals point outward (away from the head), and the (3,)
-        offset (mm) to add back to positions found on it.
+        """(mesh, offset): this mesh moved so that the median of its vertices (per coordinate) sits
+        on the origin, with its triangles wound so that the normals point outward (away from the
+        head), and the (3,) offset (mm) to add back to positions found on it.
 
         Where a scan sits must not change an answer, and far from the origin float64 loses the
-        precision the fits need. Scanners and converters often write inward-facing triangles,
-        which would turn every normal test of the fits around: a face scan is a cap curved about
-        the head's centre, so its outward winding is the one whose cone volume about its centre
-        (:attr:`signed_volume` after centring) is positive. A mesh already centred and outward is
-        returned itself (its caches are kept).
+        precision the fits need; the median, unlike the bounding box, ignores a stray spike. Scanners
+        and converters often write inward-facing triangles, which would turn every normal test of
+        the fits around: a face scan is a cap curved about the head's centre, so seen from a point
+        in its middle its outward winding is the one with a positive :attr:`signed_volume` (the
+        sides, which curve back, make it so). A mesh already centred and outward is returned itself
+        (its caches are kept).
         """
-        lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
-        offset = 0.5 * (lo + hi)
-        if np.abs(offset).max() <= 1e-9 * max(1.0, float(np.abs(hi - lo).max())):
+        offset = np.median(self.vertices, axis=0)
+        extent = float(np.abs(np.percentile(self.vertices, 99, axis=0) - np.percentile(self.vertices, 1, axis=0)).max())
+        if np.abs(offset).max() <= 1e-9 * max(1.0, extent):
             offset = np.zeros(3)
             moved = self
         else:

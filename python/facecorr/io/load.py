@@ -55,11 +55,17 @@ _AUTO_UNIT_RANGES = (("m", 0.03, 1.0), ("cm", 3.0, 60.0), ("mm", 60.0, 1000.0))
 def infer_units(vertices: np.ndarray) -> str:
     """Units of a face/head scan from the largest side ``s`` of its bounding box.
 
-    A face or head is 6 cm to 1 m across (a cropped nose region to a head with shoulders):
+    Vertices farther from the median than 3x the 90th-percentile distance are left out (a spike
+    must not change the units). A face or head is 6 cm to 1 m across (a cropped nose region to a head with shoulders):
     ``0.03 <= s <= 1`` -> "m", ``3 <= s < 60`` -> "cm", ``60 <= s <= 1000`` -> "mm". Anything else
     (including 1 < s < 3) is not a plausible face in any unit: :class:`UnitsError`, pass ``units``.
     """
     v = np.asarray(vertices, dtype=np.float64)
+    if len(v):
+        # stray points (a spike, a speck far away) do not make a face bigger: keep the vertices
+        # within 3x the 90th-percentile distance from the median
+        r = np.linalg.norm(v - np.median(v, axis=0), axis=1)
+        v = v[r <= 3.0 * np.percentile(r, 90)]
     s = float((v.max(axis=0) - v.min(axis=0)).max()) if len(v) else 0.0
     for unit, lo, hi in _AUTO_UNIT_RANGES:
         if lo <= s <= hi and not (unit == "cm" and s == hi):

@@ -125,6 +125,9 @@ class CorrespondOptions:
     # A result whose coverage is below this is flagged (a half face, a large hole); correct
     # registrations of cropped scans cover ~0.8 (the template reaches past a scan's border).
     min_coverage: float = 0.6
+    # Pieces with at least this share of the largest piece's area count as separate surfaces
+    # (several faces or a face cut in two); smaller ones are specks and hair.
+    large_piece_fraction: float = 0.2
 
 
 def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, template=None,
@@ -187,6 +190,10 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
     for name, d in zip(LANDMARK_NAMES, reg.scan_distance[ids]):
         if d > opts.off_surface_distance:
             flags.append(f"landmark_off_surface:{name} ({d:.1f} mm from the scan)")
+    areas = mesh.component_areas
+    n_large = int(np.sum(areas >= opts.large_piece_fraction * areas[0]))
+    if n_large > 1:
+        flags.append(f"several_pieces:{n_large} large pieces (the registration used the one under the landmarks)")
     coverage = float(np.mean(reg.scan_distance <= opts.coverage_distance))
     if coverage < opts.min_coverage:
         flags.append(f"low_coverage:{100 * coverage:.0f}% of the template has scan under it")
