@@ -414,3 +414,11 @@ def test_batch_keeps_going_past_a_bad_scan_and_reports_it(tmp_path, scan):
     assert r2.returncode == 0, r2.stderr
     assert not (out / "results").exists()  # the first run's outputs were not registered again
     assert not (out / "failures.json").exists() or json.loads((out / "failures.json").read_text()) == []
+
+
+def test_a_scan_above_the_size_limit_is_refused_with_advice(tmp_path, scan, monkeypatch):
+    import facecorr.io.load as load
+
+    monkeypatch.setattr(load, "MAX_VERTICES", 1000)
+    with pytest.raises(MeshError, match="decimate the scan first"):
+        load_mesh(scan[0])
