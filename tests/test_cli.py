@@ -58,8 +58,6 @@ def test_register_bad_input_is_one_line_exit_2_and_no_output(tmp_path, content, 
 
 
 def test_register_nan_mesh(tmp_path):
-    import trimesh
-
     v = np.random.default_rng(0).normal(size=(30, 3)) * 50
     v[3] = np.nan
     f = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
