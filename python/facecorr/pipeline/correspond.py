@@ -173,11 +173,13 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         reg_opts = replace(reg_opts, shape=replace(reg_opts.shape, w_landmark=opts.predicted_landmark_weight))
     reg = register(work, positions, template=template, options=reg_opts)
     doubts = reg.implausible()
-    if doubts and landmarks is None and opts.refit_on_implausible and "retried_wider_search" not in flags:
+    if doubts and landmarks is None and opts.refit_on_implausible:
         # Landmarks in a wrong pose show as a fit the model cannot explain: predict again with
-        # the wider start search and keep the better-explained fit.
+        # the wider start search and keep the better-explained fit. Also when the prediction
+        # already retried that search and kept its first answer (both failed its own checks):
+        # the registration's residual judges the two better than the landmark checks.
         t1 = time.perf_counter()
-        pred2 = predict_landmarks(work, model=model, options=opts.predict.wider())
+        pred2 = predict_landmarks(work, model=model, options=replace(opts.predict.wider(), retry=False))
         pos2 = {k: np.asarray(v, float) for k, v in pred2.positions.items()}
         reg2 = register(work, pos2, template=template, options=reg_opts)
         timings["refit"] = time.perf_counter() - t1
