@@ -3,6 +3,8 @@
 import sys
 from pathlib import Path
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -136,8 +138,10 @@ def test_a_fit_from_wrongly_posed_landmarks_is_called_implausible():
     assert reasons and any(r.startswith(("fit_rms", "identity_chi2")) for r in reasons), reasons
 
 
-def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch):
-    """First prediction wrong (turned 35 degrees), the wider search right: the refit is kept."""
+@pytest.mark.parametrize("first_flags", [[], ["retried_wider_search"]])
+def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch, first_flags):
+    """First prediction wrong (turned 35 degrees), the wider search right: the refit is kept, also
+    when the prediction had already retried the wider search and kept its first answer."""
     import facecorr.landmarks as lm_pkg
     from facecorr.landmarks.predict import LandmarkResult, PredictOptions
     from facecorr.pipeline import correspond
@@ -145,15 +149,15 @@ def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch):
     tpl = load_template()
     mesh, lms, gt, _ = make_scan(3)
     calls = []
-
-    wider = PredictOptions().wider()
+    wider = replace(PredictOptions().wider(), retry=False)
 
     def fake_predict(mesh_, model=None, options=None):
         calls.append(options)
         pos = lms if options == wider else _turned_about_the_nose(lms, 35.0)
         shift = mesh_.vertices[0] - mesh.vertices[0]  # correspond predicts on the scan centred on the origin
         pos = {k: np.asarray(v) + shift for k, v in pos.items()}
-        return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[],
+        return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES},
+                              flags=[] if options == wider else list(first_flags),
                               timings_s={"total": 0.0})
 
     monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
