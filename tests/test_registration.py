@@ -1,9 +1,8 @@
 """Expression fitting (paper §4.2) and the whole registration (§4) on ICT-model test scans."""
 
 import sys
-from pathlib import Path
-
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
