@@ -13,6 +13,7 @@ import signal
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from facecorr import io
@@ -247,31 +248,8 @@ def test_seeds_are_valid(tmp_path):
             assert check(p, fmt) in ("Mesh", "landmarks"), (fmt, read(p, fmt))
 
 
+@pytest.mark.parametrize("fmt", ["wrl", "bnd", "obj", "off", "ply"])
 @FUZZ
-@given(data=mutated("wrl"))
-def test_fuzz_wrl(tmp_path, data):
-    _run(tmp_path, "wrl", data)
-
-
-@FUZZ
-@given(data=mutated("bnd"))
-def test_fuzz_bnd(tmp_path, data):
-    _run(tmp_path, "bnd", data)
-
-
-@FUZZ
-@given(data=mutated("obj"))
-def test_fuzz_obj(tmp_path, data):
-    _run(tmp_path, "obj", data)
-
-
-@FUZZ
-@given(data=mutated("off"))
-def test_fuzz_off(tmp_path, data):
-    _run(tmp_path, "off", data)
-
-
-@FUZZ
-@given(data=mutated("ply"))
-def test_fuzz_ply_ascii(tmp_path, data):
-    _run(tmp_path, "ply", data)
+@given(data=st.data())
+def test_fuzz_reader(tmp_path, fmt, data):
+    _run(tmp_path, fmt, data.draw(mutated(fmt)))
