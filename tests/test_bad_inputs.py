@@ -422,3 +422,15 @@ def test_a_scan_above_the_size_limit_is_refused_with_advice(tmp_path, scan, monk
     monkeypatch.setattr(load, "MAX_VERTICES", 1000)
     with pytest.raises(MeshError, match="decimate the scan first"):
         load_mesh(scan[0])
+
+
+def test_result_json_carries_the_ibug68_points(tmp_path, clean, t):
+    clean.save(tmp_path / "r.ply", tmp_path / "r.json")
+    pts = json.loads((tmp_path / "r.json").read_text())["ibug68"]
+    assert len(pts) == 68
+    for k, (p, vid) in enumerate(zip(pts, t.ibug68)):
+        if vid < 0:
+            assert p is None
+        else:
+            np.testing.assert_allclose(p, clean.vertices[vid], atol=1e-9)
+    assert sum(p is not None for p in pts) >= 51  # every point but the outer jaw line

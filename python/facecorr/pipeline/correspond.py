@@ -29,6 +29,8 @@ class Result:
     faces : (M, 3) int64, the template's triangles (the same for every scan).
     landmarks : dict name -> (3,) mm, the landmarks the registration was guided by.
     landmarks_registered : dict name -> (3,) mm, the 8 landmarks read off the registered template.
+    ibug68 : (68, 3) float64 mm, the iBUG-68 points read off the registered template (scan
+        frame); NaN rows where the template has no such point (the jaw line beyond its border).
     confidence : dict name -> float in [0, 1] (1 for landmarks given by the user).
     expression_weights : dict blendshape name -> fitted weight in [0, 1].
     mhd : float, modified Hausdorff distance template -> scan, mm.
@@ -49,6 +51,7 @@ class Result:
     timings_s: dict
     flags: list = field(default_factory=list)
     coverage: float = 1.0
+    ibug68: np.ndarray | None = None
     to_mm: float = 1.0
     units: str = "mm"
 
@@ -59,6 +62,8 @@ class Result:
             "units": self.units,
             "landmarks": {k: (np.asarray(v) * s).tolist() for k, v in self.landmarks.items()},
             "landmarks_registered": {k: (np.asarray(v) * s).tolist() for k, v in self.landmarks_registered.items()},
+            "ibug68": None if self.ibug68 is None else [
+                None if not np.isfinite(p).all() else (p * s).tolist() for p in np.asarray(self.ibug68)],
             "confidence": {k: float(v) for k, v in self.confidence.items()},
             "expression_weights": {k: float(v) for k, v in self.expression_weights.items()},
             "mhd": float(self.mhd) * s,
@@ -213,6 +218,7 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         timings_s=timings,
         flags=flags,
         coverage=coverage,
+        ibug68=_ibug68_points(reg.vertices + offset, template),
         to_mm=mesh.to_mm,
         units=mesh.units,
     )
@@ -244,4 +250,12 @@ def _given_landmarks(landmarks, work: Mesh, offset, max_distance: float) -> dict
         worst = max(far, key=lambda f: f[1])
         raise LandmarkError(f"{len(far)} of the 8 landmarks are not on the scan ({worst[0]} is {worst[1]:.0f} mm from "
                             f"it, more than {max_distance:g} mm): are they in the scan's frame and units?")
+    return out
+
+
+def _ibug68_points(vertices: np.ndarray, template) -> np.ndarray:
+    """(68, 3) the template's iBUG-68 vertices in ``vertices`` (mm); NaN where it has none."""
+    ids = np.asarray(template.ibug68, dtype=np.int64)
+    out = np.full((len(ids), 3), np.nan)
+    out[ids >= 0] = vertices[ids[ids >= 0]]
     return out
