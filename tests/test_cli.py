@@ -436,3 +436,27 @@ def test_landmarks_json_output_checked_first(tmp_path):
         r = run_cli("landmarks", "scan.ply", "--json", out, cwd=tmp_path)
         assert r.returncode == 2 and what in _one_error_line(r.stderr), r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "scan.ply"]
+
+
+def test_export_points_collects_every_result(tmp_path):
+    from facecorr.names import LANDMARK_NAMES
+
+    res = tmp_path / "results"
+    (res / "F0001").mkdir(parents=True)
+    for k, stem in enumerate(["F0001/a", "b"]):
+        ibug = [[float(k), float(i), 0.5] if i >= 17 else None for i in range(68)]
+        (res / f"{stem}.json").write_text(json.dumps({
+            "units": "cm", "ibug68": ibug, "landmarks_registered": {n: [1.0, 2.0, 3.0 + k] for n in LANDMARK_NAMES}}))
+    (res / "failures.json").write_text("[]")
+    out = run_cli("export-points", res, "-o", tmp_path / "pts.csv")
+    assert out.returncode == 0, out.stderr
+    lines = (tmp_path / "pts.csv").read_text().splitlines()
+    assert lines[0] == "scan,point,x,y,z,units" and len(lines) == 1 + 2 * (68 + 8)
+    assert "F0001/a,ibug68_20,0.0,20.0,0.5,cm" in lines and "b,ibug68_3,,,,cm" in lines
+    assert "b,nose_tip,1.0,2.0,4.0,cm" in lines
+    js = run_cli("export-points", res, "-o", tmp_path / "pts.json")
+    assert js.returncode == 0 and len(json.loads((tmp_path / "pts.json").read_text())) == 2 * 76
+    bad = run_cli("export-points", tmp_path / "pts.csv", "-o", tmp_path / "x.csv")
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+    none = run_cli("export-points", res, "-o", tmp_path / "x.txt")
+    assert none.returncode == 2 and "csv or .json" in none.stderr

@@ -31,6 +31,14 @@ def add_commands(sub) -> None:
     b.add_argument("--units", default="auto", choices=["auto", "mm", "cm", "m"])
     b.set_defaults(func=cmd_batch)
 
+    x = sub.add_parser("export-points", help="the iBUG-68 points and landmarks of a batch's results, in one table",
+                       description="Read every result JSON under RESULTS (from `facecorr batch` or "
+                                   "`facecorr register --json`) and write one table of their points (iBUG-68 and the 8 "
+                                   "landmarks, scan frame and units): CSV (scan,point,x,y,z,units) or JSON.")
+    x.add_argument("results", help="folder of results")
+    x.add_argument("-o", "--output", required=True, help="table to write (.csv or .json)")
+    x.set_defaults(func=cmd_export_points)
+
     d = sub.add_parser("demo", help="synthesise a scan and run the whole pipeline on it")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     d.add_argument("--seed", type=int, default=7)
@@ -158,4 +166,30 @@ def cmd_demo(args) -> int:
     _demo_report(result, gt, "fully automatic")
     _demo_report(guided, gt, "with the true landmarks")
     print(f"wrote {out}/registered.ply, result.json, registration.png (and *_gt_landmarks.*)")
+    return 0
+
+
+def cmd_export_points(args) -> int:
+    import csv
+    import io as text_io
+
+    from ..errors import FacecorrError
+    from ..io.atomic import write_json, write_text
+    from ..pipeline.batch import collect_points
+
+    out = Path(args.output)
+    if out.suffix.lower() not in (".csv", ".json"):
+        raise FacecorrError(f"{out}: the table must be .csv or .json")
+    if out.is_dir():
+        raise FacecorrError(f"{out}: is a folder")
+    rows = collect_points(args.results)
+    if out.suffix.lower() == ".json":
+        write_json(out, rows)
+    else:
+        buf = text_io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=["scan", "point", "x", "y", "z", "units"], lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+        write_text(out, buf.getvalue())
+    print(f"{out}: {len(rows)} points of {len({r['scan'] for r in rows})} scans")
     return 0

@@ -184,3 +184,33 @@ def register_job(job):
 
         kind = "bad input" if isinstance(e, FacecorrError) else f"internal error ({type(e).__name__})"
         return {"scan": str(scan), "ok": False, "error": f"{kind}: {str(e).splitlines()[0] if str(e) else ''}"}
+
+
+def collect_points(results_dir) -> list[dict]:
+    """The points of every result JSON under ``results_dir`` (as ``facecorr register --json`` and
+    ``facecorr batch`` write them), one row per point: ``{"scan", "point", "x", "y", "z",
+    "units"}`` with ``point`` = ``ibug68_<k>`` (0-based) or a landmark name; coordinates in the
+    scan's frame and units, None where the template has no such point. Sorted by scan, then point.
+    Raises FacecorrError if the folder holds no result."""
+    from ..errors import FacecorrError
+
+    root = Path(results_dir)
+    if not root.is_dir():
+        raise FacecorrError(f"{root}: not a folder")
+    rows = []
+    for path in sorted(root.rglob("*.json")):
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if not isinstance(data, dict) or "landmarks_registered" not in data:
+            continue  # failures.json and other files
+        scan = str(path.relative_to(root).with_suffix(""))
+        points = [(f"ibug68_{k}", p) for k, p in enumerate(data.get("ibug68") or [])]
+        points += list(data["landmarks_registered"].items())
+        for name, p in points:
+            x, y, z = (None, None, None) if p is None else (float(c) for c in p)
+            rows.append({"scan": scan, "point": name, "x": x, "y": y, "z": z, "units": data.get("units", "mm")})
+    if not rows:
+        raise FacecorrError(f"{root}: no registration results (JSON files with landmarks_registered)")
+    return rows
