@@ -460,3 +460,25 @@ def test_export_points_collects_every_result(tmp_path):
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
     none = run_cli("export-points", res, "-o", tmp_path / "x.txt")
     assert none.returncode == 2 and "csv or .json" in none.stderr
+
+
+def test_register_reads_a_landmark_set_off_the_result(tmp_path, one_scan):
+    import trimesh
+
+    from facecorr.template import load_template
+
+    t = load_template()
+    f0 = t.faces[10]
+    (tmp_path / "set.json").write_text(json.dumps({"v100": 100, "mid": {"face": 10, "bary": [0.2, 0.3, 0.5]}}))
+    out = run_cli("register", one_scan["scan"], "-o", tmp_path / "r.ply", "--json", tmp_path / "r.json",
+                  "--landmark-set", tmp_path / "set.json")
+    assert out.returncode == 0, out.stderr
+    v = trimesh.load(tmp_path / "r.ply", process=False).vertices
+    pts = json.loads((tmp_path / "r.json").read_text())["point_set"]
+    np.testing.assert_allclose(pts["v100"], v[100], atol=1e-4)
+    np.testing.assert_allclose(pts["mid"], 0.2 * v[f0[0]] + 0.3 * v[f0[1]] + 0.5 * v[f0[2]], atol=1e-4)
+    for bad in ({"x": 10 ** 7}, {"x": {"face": 1, "bary": [0.5, 0.6, 0.1]}}, {"x": "nose"}, []):
+        (tmp_path / "bad.json").write_text(json.dumps(bad))
+        r = run_cli("register", one_scan["scan"], "-o", tmp_path / "b.ply", "--landmark-set", tmp_path / "bad.json")
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert "bad.json" in r.stderr and not (tmp_path / "b.ply").exists()

@@ -17,6 +17,8 @@ def add_commands(sub) -> None:
     p.add_argument("--landmarks", help="JSON of the 8 landmarks (as `facecorr landmarks` writes) to use instead of predicting")
     p.add_argument("--png", help="also write a picture: scan beside the registered template coloured by distance")
     p.add_argument("--units", default="auto", choices=["auto", "mm", "cm", "m"], help="the scan's units (default: infer)")
+    p.add_argument("--landmark-set", metavar="FILE", help="JSON of your own points on the template ({name: vertex id or "
+                   "{\"face\": id, \"bary\": [b0, b1, b2]}}), read off the result into the JSON's point_set")
     p.set_defaults(func=cmd_register)
 
     b = sub.add_parser("batch", help="register every scan in a folder (resumable)",
@@ -29,6 +31,7 @@ def add_commands(sub) -> None:
     b.add_argument("--png", action="store_true", help="also write a PNG per scan")
     b.add_argument("--overwrite", action="store_true", help="redo scans that already have results")
     b.add_argument("--units", default="auto", choices=["auto", "mm", "cm", "m"])
+    b.add_argument("--landmark-set", metavar="FILE", help="your own points on the template, read off every result")
     b.set_defaults(func=cmd_batch)
 
     x = sub.add_parser("export-points", help="the iBUG-68 points and landmarks of a batch's results, in one table",
@@ -48,7 +51,8 @@ def add_commands(sub) -> None:
 def cmd_register(args) -> int:
     from ..pipeline.batch import register_file
 
-    result = register_file(args.scan, args.output, args.json, args.png, args.units, args.landmarks)
+    result = register_file(args.scan, args.output, args.json, args.png, args.units, args.landmarks,
+                           point_set=args.landmark_set)
     print(f"{args.output}: MHD {result.mhd:.3f} mm, {result.timings_s['total']:.2f} s"
           + (f"; warnings: {'; '.join(result.flags)}" if result.flags else ""))
     return 0
@@ -84,7 +88,13 @@ def cmd_batch(args) -> int:
     from ..threads import process_iter
 
     dst = Path(args.output_dir)
-    jobs, skipped = plan_batch(Path(args.input_dir), dst, overwrite=args.overwrite, png=args.png, units=args.units)
+    if args.landmark_set:  # checked once, up front: a bad file is one error, not one per scan
+        from ..template import load_template
+        from ..template.point_sets import read_point_set
+
+        read_point_set(args.landmark_set, load_template())
+    jobs, skipped = plan_batch(Path(args.input_dir), dst, overwrite=args.overwrite, png=args.png, units=args.units,
+                               point_set=args.landmark_set)
     failures_path = dst / FAILURES_NAME
     pending = {str(j[0]): j for j in jobs}
     # an earlier run's failures stay recorded until their scan is tried again (a scan with

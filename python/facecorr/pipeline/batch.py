@@ -76,19 +76,28 @@ def check_register_outputs(scan_path, out_mesh, out_json=None, png=None) -> None
 _PICTURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
-def register_file(scan_path, out_mesh, out_json=None, png=None, units="auto", landmarks_json=None):
+def register_file(scan_path, out_mesh, out_json=None, png=None, units="auto", landmarks_json=None, point_set=None):
     """Load, register and write one scan. Returns the Result (raises FacecorrError on bad input).
 
-    The outputs are checked before the work and written as a group: all of them or none."""
+    ``point_set``: a point-set JSON on the template (:mod:`facecorr.template.point_sets`), read off
+    the result into its JSON's ``point_set``. The outputs are checked before the work and written
+    as a group: all of them or none."""
     from ..io import load_mesh
     from ..render import plot_registration
     from ..template import load_template
     from .correspond import correspond
 
     check_register_outputs(scan_path, out_mesh, out_json, png)
+    points = None
+    if point_set is not None:
+        from ..template.point_sets import read_point_set
+
+        points = read_point_set(point_set, load_template())
     mesh = load_mesh(scan_path, units=units)
     lms = read_landmarks_json(landmarks_json, mesh) if landmarks_json else None
     result = correspond(mesh, landmarks=lms)
+    if points is not None:
+        result.point_set = points.on(result.vertices)
     also = []
     if png:
         also.append((png, lambda tmp: plot_registration(mesh, result, tmp, load_template(), title=Path(scan_path).name)))
@@ -122,8 +131,9 @@ def result_paths(src: Path, dst: Path, scan: Path, png: bool = False) -> list:
     return [out_mesh, out_mesh.with_suffix(".json")] + ([out_mesh.with_suffix(".png")] if png else [])
 
 
-def plan_batch(src: Path, dst: Path, *, overwrite: bool = False, png: bool = False, units: str = "auto"):
-    """(jobs, n_skipped): one job ``(scan, out_mesh, out_json, png, units)`` per scan under ``src``
+def plan_batch(src: Path, dst: Path, *, overwrite: bool = False, png: bool = False, units: str = "auto",
+               point_set=None):
+    """(jobs, n_skipped): one job ``(scan, out_mesh, out_json, png, units, point_set)`` per scan under ``src``
     without both result files under ``dst`` (same relative path, .ply + .json).
 
     Refused (FacecorrError): ``src`` not a folder, ``dst`` an existing file or ``src`` itself, no
@@ -167,17 +177,17 @@ def plan_batch(src: Path, dst: Path, *, overwrite: bool = False, png: bool = Fal
         if not overwrite and out_mesh.exists() and out_json.exists():
             skipped += 1
             continue
-        jobs.append((s, out_mesh, out_json, rest[0] if png else None, units))
+        jobs.append((s, out_mesh, out_json, rest[0] if png else None, units, point_set))
     remove_stale_temps(dst / FAILURES_NAME)
     return jobs, skipped
 
 
 def register_job(job):
     """Worker: register one scan; never raises (returns a status row)."""
-    scan, out_mesh, out_json, png, units = job
+    scan, out_mesh, out_json, png, units, point_set = job
     t0 = time.perf_counter()
     try:
-        register_file(scan, out_mesh, out_json, png, units)
+        register_file(scan, out_mesh, out_json, png, units, point_set=point_set)
         return {"scan": str(scan), "ok": True, "seconds": round(time.perf_counter() - t0, 3)}
     except Exception as e:  # noqa: BLE001 - one bad scan must not stop the batch
         from ..errors import FacecorrError
@@ -207,7 +217,7 @@ def collect_points(results_dir) -> list[dict]:
             continue  # failures.json and other files
         scan = str(path.relative_to(root).with_suffix(""))
         points = [(f"ibug68_{k}", p) for k, p in enumerate(data.get("ibug68") or [])]
-        points += list(data["landmarks_registered"].items())
+        points += list(data["landmarks_registered"].items()) + list((data.get("point_set") or {}).items())
         for name, p in points:
             x, y, z = (None, None, None) if p is None else (float(c) for c in p)
             rows.append({"scan": scan, "point": name, "x": x, "y": y, "z": z, "units": data.get("units", "mm")})

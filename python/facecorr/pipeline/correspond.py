@@ -29,6 +29,8 @@ class Result:
     faces : (M, 3) int64, the template's triangles (the same for every scan).
     landmarks : dict name -> (3,) mm, the landmarks the registration was guided by.
     landmarks_registered : dict name -> (3,) mm, the 8 landmarks read off the registered template.
+    point_set : optional dict name -> (3,) mm, a user's points on the template read off this result
+        (:mod:`facecorr.template.point_sets`).
     ibug68 : (68, 3) float64 mm, the iBUG-68 points read off the registered template (scan
         frame); NaN rows where the template has no such point (the jaw line beyond its border).
     confidence : dict name -> float in [0, 1] (1 for landmarks given by the user).
@@ -52,6 +54,7 @@ class Result:
     flags: list = field(default_factory=list)
     coverage: float = 1.0
     ibug68: np.ndarray | None = None
+    point_set: dict | None = None
     to_mm: float = 1.0
     units: str = "mm"
 
@@ -70,6 +73,8 @@ class Result:
             "coverage": round(float(self.coverage), 4),
             "timings_s": {k: round(float(v), 4) for k, v in self.timings_s.items()},
             "flags": list(self.flags),
+            **({} if self.point_set is None else
+               {"point_set": {k: (np.asarray(v) * s).tolist() for k, v in self.point_set.items()}}),
         }
 
     def save(self, mesh_path, json_path=None, *, also=(), inputs=()) -> None:
