@@ -45,21 +45,12 @@ f 4/1 1/2 5/3 2/1
 l 1 2
 """
 
-_OFF = """OFF
-# a comment
-6 5 0
-0 0 0
-100 0 0
-100 100 0
-0 100 0
-50 50 30
-150 50 0
-3 0 1 4
-3 1 2 4
-3 2 3 4
-4 3 0 4 2 255 0 0
-3 1 5 2
-"""
+# one small mesh (6 vertices, a quad among the triangles) for the OFF and PLY seeds
+_VERTEX_ROWS = "0 0 0\n100 0 0\n100 100 0\n0 100 0\n50 50 30\n150 50 0\n"
+_TRIANGLE_ROWS = "3 0 1 4\n3 1 2 4\n3 2 3 4\n"
+
+_OFF = ("OFF\n# a comment\n6 5 0\n" + _VERTEX_ROWS + _TRIANGLE_ROWS
+        + "4 3 0 4 2 255 0 0\n3 1 5 2\n")
 
 _PLY = """ply
 format ascii 1.0
@@ -71,18 +62,7 @@ property float z
 element face 5
 property list uchar int vertex_indices
 end_header
-0 0 0
-100 0 0
-100 100 0
-0 100 0
-50 50 30
-150 50 0
-3 0 1 4
-3 1 2 4
-3 2 3 4
-4 3 0 4 2
-3 1 5 2
-"""
+""" + _VERTEX_ROWS + _TRIANGLE_ROWS + "4 3 0 4 2\n3 1 5 2\n"
 
 _WRL = """#VRML V2.0 utf8
 # BU-3DFE-like
