@@ -752,6 +752,28 @@ def test_wrl_gzip_compressed_loads(tmp_path):
     one_line(e)
 
 
+def test_wrl_gzip_concatenated_members_load(tmp_path):
+    import gzip
+
+    m = load_bytes(tmp_path, "z.wrl", gzip.compress(TRI_WRL.encode()) + gzip.compress(b"\n# more\n"))
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2]])
+
+
+def test_wrl_gzip_bomb_is_refused_without_inflating_it(tmp_path, monkeypatch):
+    """A 64 MiB-inflating .wrl (70 kB on disk) against an 8 MiB limit: refused at the limit."""
+    import zlib
+
+    from facecorr.io import vrml
+
+    monkeypatch.setattr(vrml, "MAX_GUNZIPPED_BYTES", 8 * 1024**2)
+    c = zlib.compressobj(9, zlib.DEFLATED, 16 + zlib.MAX_WBITS)
+    bomb = c.compress(TRI_WRL.encode() + b" " * (64 * 1024**2)) + c.flush()
+    assert len(bomb) < 100_000
+    with pytest.raises(MeshFileError, match="inflates to more than") as e:
+        load_bytes(tmp_path, "bomb.wrl", bomb)
+    one_line(e)
+
+
 def test_fuzz_bnd_huge_index(tmp_path):
     """Was OverflowError: Python int too large to convert to C long."""
     p = tmp_path / "x.bnd"

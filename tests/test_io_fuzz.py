@@ -1,4 +1,5 @@
-"""Fuzzing of the hand-written readers (VRML, .bnd, OBJ, OFF) and of ASCII PLY (via trimesh).
+"""Fuzzing of the hand-written readers (VRML plain and gzipped, .bnd, OBJ, OFF) and of the formats
+read through trimesh (ASCII and binary PLY, ASCII and binary STL, GLB).
 
 Valid files are mutated (truncated, bytes flipped, a bracket/brace deleted, huge/odd numbers
 inserted, a line duplicated or deleted); the only allowed outcomes are a valid Mesh (finite
@@ -9,6 +10,7 @@ runs thousands of seeded examples per format and prints the outcome counts.
 
 from __future__ import annotations
 
+import gzip
 import signal
 from pathlib import Path
 
@@ -111,13 +113,36 @@ _BND = """# BU-3DFE landmarks
 9 1,2,3
 """
 
+def _binary_seeds() -> dict[str, list[bytes]]:
+    """The OFF/PLY seeds' mesh as binary PLY (both byte orders), STL (binary, ASCII) and GLB."""
+    import trimesh
+
+    V = np.array([r.split() for r in _VERTEX_ROWS.split("\n") if r], float)
+    F = np.array([r.split()[1:] for r in _TRIANGLE_ROWS.split("\n") if r], int)
+    m = trimesh.Trimesh(V, F, process=False)
+    ply_le = trimesh.exchange.ply.export_ply(m, encoding="binary")
+    head, body = ply_le.split(b"end_header\n", 1)
+    n = len(V) * 3 * 4  # float32 xyz; faces: uint8 count + 3 int32 (trimesh's layout)
+    verts = np.frombuffer(body[:n], "<f4").astype(">f4").tobytes()
+    faces = np.frombuffer(body[n:], np.dtype([("n", "u1"), ("i", "<i4", 3)])).astype(
+        np.dtype([("n", "u1"), ("i", ">i4", 3)])).tobytes()
+    ply_be = head.replace(b"binary_little_endian", b"binary_big_endian") + b"end_header\n" + verts + faces
+    return {
+        "ply": [ply_le, ply_be],
+        "stl": [trimesh.exchange.stl.export_stl(m), trimesh.exchange.stl.export_stl_ascii(m).encode()],
+        "glb": [m.export(file_type="glb")],
+    }
+
+
 SEEDS: dict[str, list[bytes]] = {
     "obj": [_OBJ.encode("latin-1"), _OBJ.replace("\n", "\r\n").encode("latin-1")],
     "off": [_OFF.encode(), b"\xef\xbb\xbf" + _OFF.replace("\n", "\r\n").encode()],
     "ply": [_PLY.encode(), _PLY.replace("\n", "\r\n").encode()],
-    "wrl": [_WRL.encode(), _big_wrl().encode()],
+    "wrl": [_WRL.encode(), _big_wrl().encode(), gzip.compress(_WRL.encode(), mtime=0)],
     "bnd": [_BND.encode(), _BND.replace("\n", "\r\n").encode()],
 }
+for _fmt, _seeds in _binary_seeds().items():
+    SEEDS[_fmt] = SEEDS.get(_fmt, []) + _seeds
 
 ODD_NUMBERS = [b"1e308", b"-1e308", b"1e999", b"-1e999", b"-0", b"nan", b"-nan", b"inf", b"1e-320",
                b"99999999999999999999", b"-99999999999999999999", b"9223372036854775808", b"-1",
@@ -228,7 +253,7 @@ def test_seeds_are_valid(tmp_path):
             assert check(p, fmt) in ("Mesh", "landmarks"), (fmt, read(p, fmt))
 
 
-@pytest.mark.parametrize("fmt", ["wrl", "bnd", "obj", "off", "ply"])
+@pytest.mark.parametrize("fmt", sorted(SEEDS))
 @FUZZ
 @given(data=st.data())
 def test_fuzz_reader(tmp_path, fmt, data):

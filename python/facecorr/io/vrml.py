@@ -13,7 +13,6 @@ unit conversion; :func:`facecorr.io.load_mesh` does that). Syntax errors are one
 
 from __future__ import annotations
 
-import gzip
 import re
 import zlib
 from pathlib import Path
@@ -30,6 +29,8 @@ _MAX_DEPTH = 100  # node nesting (real files: < 10)
 _MAX_VISITS = 100_000  # node instances after DEF/USE expansion
 _MAX_FACE_SETS = 10_000  # IndexedFaceSet instances after DEF/USE expansion
 _MAX_VERTICES = 100_000_000  # vertices of all instances (a face scan: ~1e5)
+#: decompressed size of a gzip-compressed .wrl (20M vertices of text ≈ 2 GB; a "zip bomb" is more)
+MAX_GUNZIPPED_BYTES = 4 * 1024**3
 _SCALAR_WORDS = {"TRUE", "FALSE", "NULL"}
 _NONFINITE = {"nan", "inf", "infinity"}  # not VRML, but printf writes them; reported as NaN/inf
 # A bracketed list without nodes, strings or comments (the big point / coordIndex arrays).
@@ -385,6 +386,35 @@ def _collect_face_sets(nodes, p: _WrlParser, M: np.ndarray, out: list, depth: in
                     break
 
 
+def _gunzip(raw: bytes, path: Path, limit: int | None = None) -> bytes:
+    """Decompress a gzip member (or several), refusing output beyond ``limit`` bytes.
+
+    Streams in 64 MiB pieces so a small file that inflates to terabytes (a "zip bomb") is stopped
+    at the limit instead of exhausting memory.
+    """
+    limit = MAX_GUNZIPPED_BYTES if limit is None else limit
+    out, total, data = [], 0, raw
+    try:
+        while data:
+            d = zlib.decompressobj(16 + zlib.MAX_WBITS)
+            while True:
+                piece = d.decompress(data, 64 * 1024**2)
+                total += len(piece)
+                if total > limit:
+                    raise MeshFileError(f"{path}: gzip-compressed VRML inflates to more than "
+                                        f"{limit / 1024**3:.3g} GiB; not a face scan (or a zip bomb)")
+                out.append(piece)
+                data = d.unconsumed_tail
+                if d.eof or not (data or piece):  # done, or input spent and nothing buffered
+                    break
+            if not d.eof:
+                raise MeshFileError(f"{path}: broken gzip-compressed VRML file (truncated)")
+            data = d.unused_data.lstrip(b"\x00")  # concatenated members; padding NULs end it
+    except zlib.error as e:
+        raise MeshFileError(f"{path}: broken gzip-compressed VRML file ({e})") from None
+    return b"".join(out)
+
+
 def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
     """Raw (V, F) of a VRML 2.0 file: all IndexedFaceSets merged, polygons fan-triangulated.
 
@@ -399,10 +429,7 @@ def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
     except OSError as e:
         raise MeshFileError(f"{path}: cannot read: {e.strerror or e}") from None
     if raw[:2] == b"\x1f\x8b":  # VRML allows gzip-compressed .wrl files
-        try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError, zlib.error) as e:
-            raise MeshFileError(f"{path}: broken gzip-compressed VRML file ({e})") from None
+        raw = _gunzip(raw, path)
     if b"\x00" in raw:
         raise MeshFileError(f"{path}: binary data (NUL bytes) in a VRML file: not a VRML file, or a broken one")
     text = raw.decode("utf-8", errors="replace")
