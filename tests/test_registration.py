@@ -57,6 +57,27 @@ def test_expression_weights_are_recovered(solver):
     assert res.rounds and res.rounds[-1].get("stopped") == "converged"
 
 
+def test_energy_stop_ends_the_creep_with_the_same_fit():
+    """The energy-flat stop (ExpressionOptions.energy_rtol) ends the fit rounds earlier than the
+    α-step test alone, and where it ends the fitted template has hardly moved since."""
+    tpl = load_template()
+    mesh, lms, _, _ = make_scan(3)
+    ids = np.asarray(tpl.landmark_ids)
+    from facecorr.registration.alignment import align_landmarks
+
+    T = align_landmarks(np.asarray(tpl.vertices)[ids], np.array([lms[n] for n in LANDMARK_NAMES]))
+    full = fit_expression(tpl, T, mesh, energy_rtol=0.0, max_rounds=80)
+    flat = fit_expression(tpl, T, mesh)  # the default energy_rtol
+    assert ExpressionOptions().energy_rtol > 0
+    assert flat.rounds[-1].get("stopped") == "energy flat", flat.rounds[-1]
+    assert len(flat.rounds) < len(full.rounds)
+    e = [r["energy"] for r in flat.rounds if "energy" in r]
+    w = ExpressionOptions().energy_window
+    assert e[-1] >= (1 - ExpressionOptions().energy_rtol) * e[-1 - w]
+    moved = np.linalg.norm(flat.vertices - full.vertices, axis=1)
+    assert np.median(moved) < 0.15 and moved.max() < 0.5, (np.median(moved), moved.max())
+
+
 def test_register_end_to_end_on_an_ict_scan():
     tpl = load_template()
     mesh, lms, gt, _ = make_scan(0)

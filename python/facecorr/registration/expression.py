@@ -110,6 +110,10 @@ class ExpressionOptions:
     max_rounds: int = 50              # ICP rounds (nearest-vertex ICP creeps; settles by ~50)
     max_stage_rounds: int = 8         # a stage also ends after this many rounds
     alpha_tol: float = 1e-3           # max |Δα| that counts as converged
+    # Also converged once the identity prior has annealed and the data energy fell by less than
+    # this share over the last ``energy_window`` rounds (0 = off): the ICP's late creep.
+    energy_rtol: float = 5e-3
+    energy_window: int = 3
     max_distance: float = 10.0        # matches farther than this are dropped (inf = the paper)
     reject_boundary: bool = True      # scan boundary vertices are never matches
     lip_rim_rings: int = 1            # no data on the inner lip rim + this many rings (-1 = keep)
@@ -445,6 +449,12 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
         rounds.append(dict(stage=stage, w_chin=float(w_region[1]), w_mouth=float(w_region[2]),
                            f_chin=f_chin, f_mouth=f_mouth, n_valid=int(valid.sum()), energy=energy,
                            step=step))
+        annealed = o.identity_prior_start is None or mu_id <= float(o.identity_prior)
+        w_e = int(o.energy_window)
+        if (o.energy_rtol > 0.0 and annealed and len(rounds) > w_e and not (o.weights == "paper" and stage == 1)
+                and energy >= (1.0 - float(o.energy_rtol)) * rounds[-1 - w_e]["energy"]):
+            rounds[-1]["stopped"] = "energy flat"
+            break
         if step < o.alpha_tol:
             if o.weights == "paper" and stage == 1:
                 stage = 2  # stage 1 converged without 80 % valid chin matches: fit the mouth anyway
