@@ -20,7 +20,6 @@ Measured end to end in BENCHMARKS.md ("Registration (issue 5)").
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize
 
 from ..errors import RegistrationError
 from ..geometry.transforms import apply_transform, as_matrix, kabsch
@@ -83,6 +82,8 @@ def affine_quasi_newton(src, dst, start=None, prior=None, prior_weight=0.0) -> n
         return e / scale**2, g.ravel() / scale**2
 
     x_start = (x0 / np.array([1, 1, 1, scale])).ravel()
+    from scipy.optimize import minimize  # only on this path: scipy.optimize costs ~0.3 s to import
+
     res = minimize(f, x_start, jac=True, method="BFGS", options={"gtol": 1e-12, "maxiter": 1000})
     return res.x.reshape(3, 4) * np.array([1, 1, 1, scale])
 

@@ -54,7 +54,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize
 
 from ..geometry.mesh import Mesh, vertex_normals
 from ..geometry.transforms import rotation_angle, rotation_from_vector
@@ -411,6 +410,7 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
                 return float(a @ ha - 2.0 * g @ a + const), 2.0 * (ha - g)
 
             bounds = [(None if np.isinf(a) else a, None if np.isinf(b) else b) for a, b in zip(lo_x, hi_x)]
+            from scipy.optimize import minimize  # this solver only: ~0.3 s to import
             a_new = minimize(f, x0, jac=True, method="L-BFGS-B", bounds=bounds,
                              options={"maxiter": 200, "ftol": 1e-12, "gtol": 1e-9}).x
         # the data energy of the solution from the quadratic form (no second pass over the rows)
