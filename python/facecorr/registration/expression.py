@@ -111,7 +111,7 @@ class ExpressionOptions:
     alpha_tol: float = 1e-3           # max |Δα| that counts as converged
     # Also converged once the identity prior has annealed and the data energy fell by less than
     # this share over the last ``energy_window`` rounds (0 = off): the ICP's late creep.
-    energy_rtol: float = 5e-3
+    energy_rtol: float = 2e-3
     energy_window: int = 3
     max_distance: float = 10.0        # matches farther than this are dropped (inf = the paper)
     reject_boundary: bool = True      # scan boundary vertices are never matches

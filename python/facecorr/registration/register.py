@@ -109,7 +109,7 @@ class RegisterOptions:
     # mouths).
     jaw_starts: tuple = (0.0, 0.3)
     # None: every start runs to the end; n: after n rounds only the best start goes on
-    jaw_select_rounds: object = 6
+    jaw_select_rounds: object = 10
     # Identity modes fitted with the expression (see identity.py): None, "packaged" (the basis
     # shipped with facecorr), a path or an IdentityBasis; identity_modes keeps the first modes only.
     identity: object = "packaged"
