@@ -31,7 +31,7 @@ def run_cli(*args, cwd=None):
 
 
 def _one_error_line(stderr: str) -> str:
-    lines = [l for l in stderr.splitlines() if l.strip() and "it/s]" not in l and "file/s]" not in l]
+    lines = [l for l in stderr.splitlines() if l.strip()]
     assert len(lines) == 1 and lines[0].startswith("facecorr: error:"), stderr
     return lines[0]
 
