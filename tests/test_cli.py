@@ -19,7 +19,7 @@ def test_help_lists_every_command():
     assert out.returncode == 0
     # the sub-command names as argparse lists them, one per line, whole words
     listed = set(re.findall(r"^    (\S+)", out.stdout, flags=re.M))
-    assert {"register", "batch", "demo", "eval", "landmarks", "train", "train-identity", "template", "synth"} <= listed, listed
+    assert {"register", "batch", "report", "demo", "eval", "landmarks", "train", "train-identity", "template", "synth"} <= listed, listed
     sub = run_cli("eval", "--help")
     assert {"registration", "landmarks"} <= set(re.findall(r"^    (\S+)", sub.stdout, flags=re.M)), sub.stdout
 

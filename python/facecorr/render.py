@@ -1,8 +1,11 @@
-"""Quick shaded renderings of triangle meshes with matplotlib (no OpenGL needed).
+"""Quick shaded renderings of triangle meshes with matplotlib (no OpenGL needed), and the small
+thumbnails and histograms of a batch's report.
 
 Triangles are projected orthographically, Lambert-shaded and painted far to near
 (painter's algorithm) with ``tripcolor``: fast enough for 50k-triangle scans and good enough to
-judge a face, a fit or an error map by eye.
+judge a face, a fit or an error map by eye. The thumbnails (:func:`thumbnail_png`) are z-buffer
+rasterized instead (:mod:`facecorr.geometry.raster`), smoothly shaded: a noise-free small picture
+compresses to a third of a painted one.
 """
 
 from __future__ import annotations
@@ -175,3 +178,188 @@ def plot_cumulative(worst, path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
+
+
+# --- thumbnails of registrations, for a batch and its report -----------------------------------
+
+#: The distance colour scale of the thumbnails: 0 mm (blue) to this many mm or more (red).
+DISTANCE_RANGE_MM = 3.0
+#: PNG text key (and value) marking a picture :func:`thumbnail_png` made.
+THUMBNAIL_TAG = ("facecorr", "registration-thumbnail-1")
+#: Each panel of a thumbnail, pixels (width, height).
+THUMBNAIL_PANEL = (200, 240)
+_LIGHT = np.array([0.3, 0.4, 1.0]) / np.linalg.norm([0.3, 0.4, 1.0])
+_SKIN = np.array([0.85, 0.78, 0.72])
+
+
+def distance_colours(distance_mm) -> np.ndarray:
+    """(N, 3) RGB in [0, 1] of distances (N,) mm on the thumbnails' scale: matplotlib's turbo
+    from 0 to :data:`DISTANCE_RANGE_MM` (its darkest blues left out: they would hide the shading);
+    NaN counts as far."""
+    import matplotlib
+
+    d = np.nan_to_num(np.asarray(distance_mm, dtype=np.float64), nan=np.inf)
+    return matplotlib.colormaps["turbo"](0.12 + 0.88 * np.clip(d / DISTANCE_RANGE_MM, 0.0, 1.0))[..., :3]
+
+
+def _vertex_shade(vertices, faces, smooth_rings: int = 0) -> np.ndarray:
+    """(N,) Lambert shade in [0.25, 1] of the vertex normals (averaged over ``smooth_rings`` rings
+    of neighbours: a scan's sensor noise would dominate a small picture)."""
+    from .geometry.mesh import vertex_normals
+
+    n = vertex_normals(vertices, faces)
+    if smooth_rings:
+        import scipy.sparse as sp
+
+        e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+        adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(vertices),) * 2).tocsr()
+        adj = ((adj + adj.T) > 0).astype(np.float64) + sp.identity(len(vertices), format="csr")
+        for _ in range(smooth_rings):
+            n = adj @ n
+        n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
+    return 0.25 + 0.75 * np.abs(n @ _LIGHT)
+
+
+def _raster_panel(project, vertices, faces, shade, distance=None, size=THUMBNAIL_PANEL, supersample=2):
+    """(H, W, 3) uint8 front view of a mesh (white background, nearest surface wins): skin colour
+    or, with ``distance`` (N,) mm, :func:`distance_colours`, both times ``shade`` (N,); values
+    interpolated across each triangle, rendered ``supersample`` times larger and averaged down."""
+    from .geometry.raster import rasterize
+
+    w, h = size[0] * supersample, size[1] * supersample
+    tri, bary, _ = rasterize(project(vertices) * supersample, -vertices[:, 2], faces, w, h)
+    img = np.ones((h, w, 3))
+    hit = tri >= 0
+    corners = faces[tri[hit]]
+    b = bary[hit]
+    s = np.einsum("pk,pk->p", b, shade[corners])
+    rgb = _SKIN[None, :] if distance is None else distance_colours(np.einsum("pk,pk->p", b, distance[corners]))
+    img[hit] = np.clip(rgb * s[:, None], 0.0, 1.0)
+    img = img.reshape(size[1], supersample, size[0], supersample, 3).mean(axis=(1, 3))
+    return (img * 255 + 0.5).astype(np.uint8)
+
+
+def thumbnail_png(vertices, faces, distance_mm, template, *, scan=None, landmarks=None) -> bytes:
+    """A small PNG (~25 kB, 400 x 240) of one registration, for a batch's report.
+
+    Left: the scan (a Mesh, mm) or, without it, the registered template in skin colour, with
+    ``landmarks`` (K, 3) mm, the landmarks the registration used, as red dots. Right: the
+    registered template coloured by ``distance_mm`` (N,), its vertices' distance to the scan
+    (:func:`distance_colours`, grey where None). Both are front views in the template's frame (a
+    rigid fit of ``vertices`` (N, 3) mm onto the template's rest pose), at the same scale. A
+    64-colour palette keeps 700 of them in an HTML page of ~25 MB; a PNG text chunk
+    (:data:`THUMBNAIL_TAG`) marks the picture as one of these.
+    """
+    import io
+
+    from PIL import Image, ImageDraw
+    from PIL.PngImagePlugin import PngInfo
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    r, t = kabsch(vertices, np.asarray(template.vertices, dtype=np.float64))
+    reg = vertices @ r.T + t
+    lo, hi = reg[:, :2].min(axis=0), reg[:, :2].max(axis=0)
+    (pw, ph), margin = THUMBNAIL_PANEL, 4
+    scale = min((pw - 2 * margin) / max(hi[0] - lo[0], 1e-9), (ph - 2 * margin) / max(hi[1] - lo[1], 1e-9))
+    cx, cy = (lo + hi) / 2
+
+    def project(v):  # template frame (x right, y up, viewer on +z) -> panel pixels
+        return np.column_stack([(v[:, 0] - cx) * scale + pw / 2, (cy - v[:, 1]) * scale + ph / 2])
+
+    if scan is not None:
+        sv = scan.vertices @ r.T + t
+        near = np.linalg.norm(sv - reg.mean(axis=0), axis=1) < 1.3 * np.linalg.norm(reg - reg.mean(axis=0), axis=1).max()
+        sf = scan.faces[near[scan.faces].all(axis=1)]
+        left = _raster_panel(project, sv, sf, _vertex_shade(sv, sf, smooth_rings=2))  # the kept part only
+    else:
+        left = _raster_panel(project, reg, faces, _vertex_shade(reg, faces))
+    shade = _vertex_shade(reg, faces)
+    if distance_mm is None:
+        right = _raster_panel(project, reg, faces, shade * 0.8)
+    else:
+        right = _raster_panel(project, reg, faces, shade, distance=np.asarray(distance_mm, dtype=np.float64))
+    im = _palette_of_halves(left, right)
+    if landmarks is not None:  # drawn after the quantization, in their own palette entries
+        draw = ImageDraw.Draw(im)
+        for x, y in project(np.asarray(landmarks, dtype=np.float64) @ r.T + t):
+            draw.ellipse([x - 3.5, y - 3.5, x + 3.5, y + 3.5], fill=_DOT, outline=_DOT + 1)
+    info = PngInfo()
+    info.add_text(*THUMBNAIL_TAG)
+    info.add_text("Description", "left: the scan with the landmarks used (red); right: the registered template "
+                  f"coloured by its distance to the scan, 0 (blue) to {DISTANCE_RANGE_MM:g} mm or more (red)")
+    buf = io.BytesIO()
+    im.save(buf, format="PNG", optimize=True, pnginfo=info)
+    return buf.getvalue()
+
+
+#: Palette entries of a thumbnail: 30 colours of the left panel, the dots' red and white, 32 of
+#: the right panel (one palette for both would spend the skin tones on the distance colours).
+_HALF_COLOURS = 32
+_DOT = _HALF_COLOURS - 2
+
+
+def _palette_of_halves(left, right):
+    """The two panels (H, W, 3) uint8 side by side as one palette image (:data:`_HALF_COLOURS`)."""
+    from PIL import Image
+
+    idx, pal = [], []
+    for k, (half, n) in enumerate(((left, _DOT), (right, _HALF_COLOURS))):
+        q = Image.fromarray(half).quantize(colors=n, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+        idx.append(np.asarray(q, dtype=np.uint8) + k * _HALF_COLOURS)
+        pal += (q.getpalette() + [255] * 3 * n)[: 3 * n] + ([225, 25, 25, 255, 255, 255] if k == 0 else [])
+    out = Image.fromarray(np.concatenate(idx, axis=1), mode="P")
+    out.putpalette(pal)
+    return out
+
+
+def is_thumbnail_png(path) -> bool:
+    """Whether ``path`` is a PNG :func:`thumbnail_png` made (False for any other or unreadable file)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return im.format == "PNG" and im.text.get(THUMBNAIL_TAG[0]) == THUMBNAIL_TAG[1]
+    except Exception:  # noqa: BLE001 - any unreadable picture is "not one of ours"
+        return False
+
+
+def histogram_png(values, *, xlabel: str, title: str, thresholds=(), bins: int = 30, log: bool = False) -> bytes:
+    """A small PNG histogram (320 x 190) of ``values`` (finite ones counted) with dashed vertical
+    lines at ``thresholds`` (pairs (x, label): where a flag is raised)."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    from matplotlib.ticker import MaxNLocator
+
+    fig, ax = plt.subplots(figsize=(3.2, 1.9), dpi=100)
+    if len(v):
+        # the bins span the thresholds too: a bar's width does not depend on where the lines are
+        span = np.concatenate([v, [x for x, _ in thresholds]])
+        lo, hi = float(span.min()), float(span.max())
+        if hi - lo < 1e-9:
+            lo, hi = lo - 0.5, hi + 0.5
+        ax.hist(v, bins=np.linspace(lo, hi, bins + 1), color="#4a78b5", edgecolor="white", linewidth=0.4, log=log)
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    else:
+        ax.text(0.5, 0.5, "no values", transform=ax.transAxes, ha="center", va="center", color="grey")
+    for x, label in thresholds:
+        ax.axvline(x, color="#c0392b", linestyle="--", linewidth=1)
+        ax.annotate(label, (x, 1), xycoords=("data", "axes fraction"), xytext=(3, -3), textcoords="offset points",
+                    ha="left", va="top", fontsize=7, color="#c0392b")
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel(xlabel, fontsize=8)
+    ax.tick_params(labelsize=7)
+    for side in ("top", "right"):
+        ax.spines[side].set_visible(False)
+    fig.tight_layout(pad=0.4)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    return buf.getvalue()

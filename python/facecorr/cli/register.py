@@ -28,7 +28,8 @@ def add_commands(sub) -> None:
     b.add_argument("input_dir")
     b.add_argument("output_dir")
     b.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
-    b.add_argument("--png", action="store_true", help="also write a PNG per scan")
+    b.add_argument("--png", action="store_true", help="also write a small PNG per scan (the report's thumbnail: the scan "
+                   "with the landmarks used beside the registered template coloured by distance to the scan)")
     b.add_argument("--overwrite", action="store_true", help="redo scans that already have results")
     b.add_argument("--units", default="auto", choices=["auto", "mm", "cm", "m"])
     b.add_argument("--landmark-set", metavar="FILE", help="your own points on the template, read off every result")

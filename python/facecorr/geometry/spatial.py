@@ -1,4 +1,5 @@
-"""Nearest-neighbour queries in 3-D: a KD-tree with scipy ``cKDTree`` semantics (Rust, kiddo).
+"""Nearest-neighbour queries in 3-D: a KD-tree with scipy ``cKDTree`` semantics (Rust, kiddo),
+the MHD, closest points on triangles and the distance of points to a mesh's surface.
 
 Queries run in parallel in facecorr's thread pool (2 threads unless ``FACECORR_THREADS`` says
 otherwise) with the GIL released.
@@ -12,7 +13,7 @@ import numpy as np
 
 from .. import _core
 
-__all__ = ["KDTree", "mhd", "voxel_subsample"]
+__all__ = ["KDTree", "closest_point_on_triangles", "mhd", "surface_distance", "voxel_subsample"]
 
 
 def _as_points(a, what: str) -> np.ndarray:
@@ -151,3 +152,58 @@ def voxel_subsample(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.n
     first = np.ones(len(order), dtype=bool)
     first[1:] = np.any(c[1:] != c[:-1], axis=1)
     return np.sort(ids[order[first]])
+
+
+def closest_point_on_triangles(p: np.ndarray, tri: np.ndarray):
+    """Closest points of triangles ``tri`` (K, 3, 3) to points ``p`` (K, 3), pairwise (mm).
+
+    The projection onto the plane when it falls inside the triangle, else the nearest point of
+    the three edges. Returns (distances (K,), closest points (K, 3))."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    n = np.cross(b - a, c - a)
+    nn = np.maximum(np.einsum("kd,kd->k", n, n), 1e-300)
+    h = np.einsum("kd,kd->k", p - a, n) / nn
+    best_q = p - h[:, None] * n  # projection onto the plane
+    # (near-)degenerate triangles have no usable plane: only their edges count
+    longest2 = np.max([np.einsum("kd,kd->k", e, e) for e in (b - a, c - b, a - c)], axis=0)
+    inside = nn > 1e-16 * longest2**2
+    for u, v in ((a, b), (b, c), (c, a)):
+        inside &= np.einsum("kd,kd->k", np.cross(v - u, best_q - u), n) >= 0
+    best = np.where(inside, np.linalg.norm(p - best_q, axis=1), np.inf)
+    for u, v in ((a, b), (b, c), (c, a)):
+        e = v - u
+        t = np.clip(np.einsum("kd,kd->k", p - u, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0.0, 1.0)
+        q = u + t[:, None] * e
+        d = np.linalg.norm(p - q, axis=1)
+        better = d < best
+        best = np.where(better, d, best)
+        best_q = np.where(better[:, None], q, best_q)
+    return best, best_q
+
+
+def surface_distance(points, vertices, faces, nearest) -> np.ndarray:
+    """(K,) distance of each point to the surface of the mesh (``vertices``, ``faces``), mm.
+
+    The closest point is sought on the triangles around each point's nearest vertex
+    (``nearest`` (K,) int, e.g. from ``KDTree.query``): exact whenever the closest surface point
+    lies on them, as for points near a well-shaped mesh, and never more than the distance to that
+    vertex. Unlike the nearest-vertex distance it is ~0 on the surface whatever the mesh's
+    resolution, and grows beyond its border and over its holes. A vertex in no triangle counts as
+    a point of the surface.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    nearest = np.asarray(nearest, dtype=np.int64)
+    flat = faces.ravel()
+    order = np.argsort(flat, kind="stable")  # the corners of each vertex, CSR-style
+    starts = np.searchsorted(flat[order], np.arange(len(vertices) + 1))
+    counts = starts[nearest + 1] - starts[nearest]
+    owner = np.repeat(np.arange(len(points)), counts)  # one (point, incident triangle) pair a row
+    within = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
+    tri = order[np.repeat(starts[nearest], counts) + within] // 3
+    out = np.linalg.norm(points - vertices[nearest], axis=1)
+    if len(owner):
+        d, _ = closest_point_on_triangles(points[owner], vertices[faces[tri]])
+        np.minimum.at(out, owner, d)
+    return out

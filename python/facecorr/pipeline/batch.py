@@ -76,14 +76,20 @@ def check_register_outputs(scan_path, out_mesh, out_json=None, png=None) -> None
 _PICTURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
-def register_file(scan_path, out_mesh, out_json=None, png=None, units="auto", landmarks_json=None, point_set=None):
+def register_file(scan_path, out_mesh, out_json=None, png=None, units="auto", landmarks_json=None, point_set=None,
+                  picture="registration"):
     """Load, register and write one scan. Returns the Result (raises FacecorrError on bad input).
 
     ``point_set``: a point-set JSON on the template (:mod:`facecorr.template.point_sets`), read off
-    the result into its JSON's ``point_set``. The outputs are checked before the work and written
-    as a group: all of them or none."""
+    the result into its JSON's ``point_set``. ``picture``: what ``png`` shows, "registration" (the
+    scan beside the registered template, :func:`facecorr.render.plot_registration`) or "thumbnail"
+    (a small one for a batch's report, :func:`facecorr.render.thumbnail_png`; PNG only). The
+    outputs are checked before the work and written as a group: all of them or none."""
+    import numpy as np
+
     from ..io import load_mesh
-    from ..render import plot_registration
+    from ..names import LANDMARK_NAMES
+    from ..render import plot_registration, thumbnail_png
     from ..template import load_template
     from .correspond import correspond
 
@@ -99,7 +105,11 @@ def register_file(scan_path, out_mesh, out_json=None, png=None, units="auto", la
     if points is not None:
         result.point_set = points.on(result.vertices)
     also = []
-    if png:
+    if png and picture == "thumbnail":
+        also.append((png, lambda tmp: tmp.write_bytes(thumbnail_png(
+            result.vertices, result.faces, result.surface_distance, load_template(), scan=mesh,
+            landmarks=np.array([result.landmarks[n] for n in LANDMARK_NAMES])))))
+    elif png:
         also.append((png, lambda tmp: plot_registration(mesh, result, tmp, load_template(), title=Path(scan_path).name)))
     result.save(out_mesh, out_json, also=also, inputs=[scan_path])
     return result
@@ -183,11 +193,12 @@ def plan_batch(src: Path, dst: Path, *, overwrite: bool = False, png: bool = Fal
 
 
 def register_job(job):
-    """Worker: register one scan; never raises (returns a status row)."""
+    """Worker: register one scan (its PNG, if any, the report's thumbnail); never raises (returns a
+    status row)."""
     scan, out_mesh, out_json, png, units, point_set = job
     t0 = time.perf_counter()
     try:
-        register_file(scan, out_mesh, out_json, png, units, point_set=point_set)
+        register_file(scan, out_mesh, out_json, png, units, point_set=point_set, picture="thumbnail")
         return {"scan": str(scan), "ok": True, "seconds": round(time.perf_counter() - t0, 3)}
     except Exception as e:  # noqa: BLE001 - one bad scan must not stop the batch
         from ..errors import FacecorrError

@@ -38,6 +38,11 @@ class Result:
     mhd : float, modified Hausdorff distance template -> scan, mm.
     coverage : float in [0, 1], the share of the registered template's vertices with scan under
         them (nearest scan vertex within ``CorrespondOptions.coverage_distance`` mm).
+    fit_rms : float or None, RMS residual of the expression + identity fit, mm (how well the model
+        explains the scan; None when the expression is not fitted).
+    surface_distance : (N,) float64 or None, each registered vertex's distance to the scan's
+        surface, mm (:func:`facecorr.geometry.spatial.surface_distance`): ~0 where the template
+        lies on the scan, growing where it misses it or reaches past its border.
     timings_s : dict stage -> seconds.
     flags : list of str, warnings (low-confidence landmarks, ...).
     to_mm, units : the scan's units (results are written back in them).
@@ -57,9 +62,12 @@ class Result:
     point_set: dict | None = None
     to_mm: float = 1.0
     units: str = "mm"
+    fit_rms: float | None = None
+    surface_distance: np.ndarray | None = None
 
     def to_json(self) -> dict:
-        """The JSON contract of ``facecorr register --json`` (coordinates and MHD in the scan's units)."""
+        """The JSON contract of ``facecorr register --json`` (coordinates, distances and MHD in the
+        scan's units; ``surface_distance`` packed by :func:`encode_distances`)."""
         s = 1.0 / self.to_mm
         return {
             "units": self.units,
@@ -71,6 +79,8 @@ class Result:
             "expression_weights": {k: float(v) for k, v in self.expression_weights.items()},
             "mhd": float(self.mhd) * s,
             "coverage": round(float(self.coverage), 4),
+            "fit_rms": None if self.fit_rms is None else float(self.fit_rms) * s,
+            "surface_distance": None if self.surface_distance is None else encode_distances(self.surface_distance, self.to_mm),
             "timings_s": {k: round(float(v), 4) for k, v in self.timings_s.items()},
             "flags": list(self.flags),
             **({} if self.point_set is None else
@@ -107,6 +117,39 @@ class Result:
                 k = 2
             for (_, writer), tmp in zip(also, tmps[k:]):
                 writer(tmp)
+
+
+#: ``surface_distance`` in the JSON: one byte a vertex, this many mm a step (255: this x 255 or more).
+DISTANCE_STEP_MM = 0.02
+
+
+def encode_distances(distance_mm, to_mm: float = 1.0) -> dict:
+    """Per-vertex distances (N,) mm packed for the result JSON, in the scan's units (``to_mm`` mm a
+    unit): ``{"encoding": "uint8-base64", "step": s, "data": ...}`` with distance = byte x s, the
+    byte 255 meaning 255 s or more (5.1 mm). ~7 kB for the template's vertices, 0.01 mm rounding."""
+    import base64
+
+    d = np.asarray(distance_mm, dtype=np.float64)
+    codes = np.clip(np.rint(np.nan_to_num(d, nan=np.inf) / DISTANCE_STEP_MM), 0, 255).astype(np.uint8)
+    return {"encoding": "uint8-base64", "step": DISTANCE_STEP_MM / to_mm, "data": base64.b64encode(codes.tobytes()).decode("ascii")}
+
+
+def decode_distances(packed) -> np.ndarray:
+    """(N,) float64 distances in the JSON's units from :func:`encode_distances`' dict; ValueError
+    (a one-line reason) when it is not one."""
+    import base64
+    import binascii
+
+    if not isinstance(packed, dict) or packed.get("encoding") != "uint8-base64":
+        raise ValueError("surface_distance is not a {\"encoding\": \"uint8-base64\", ...} object")
+    step, data = packed.get("step"), packed.get("data")
+    if isinstance(step, bool) or not isinstance(step, (int, float)) or not step > 0 or not isinstance(data, str):
+        raise ValueError("surface_distance needs a positive \"step\" and a base64 \"data\" string")
+    try:
+        codes = np.frombuffer(base64.b64decode(data, validate=True), dtype=np.uint8)
+    except (binascii.Error, ValueError):
+        raise ValueError("surface_distance data is not base64") from None
+    return codes.astype(np.float64) * float(step)
 
 
 @dataclass(frozen=True)
@@ -208,6 +251,10 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
     if n_large > 1:
         flags.append(f"several_pieces:{n_large} large pieces (the registration used the one under the landmarks)")
     coverage = float(np.mean(reg.scan_distance <= opts.coverage_distance))
+    from ..geometry.spatial import surface_distance
+
+    _, nearest = work.kdtree.query(reg.vertices)
+    surface = surface_distance(reg.vertices, work.vertices, work.faces, nearest)
     if coverage < opts.min_coverage:
         flags.append(f"low_coverage:{100 * coverage:.0f}% of the template has scan under it")
     timings.update({f"registration.{k}": v for k, v in reg.timings_s.items()})
@@ -226,6 +273,8 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         ibug68=_ibug68_points(reg.vertices + offset, template),
         to_mm=mesh.to_mm,
         units=mesh.units,
+        fit_rms=reg.details.get("fit_rms_mm"),
+        surface_distance=surface,
     )
 
 
