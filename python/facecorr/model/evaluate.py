@@ -59,7 +59,7 @@ def leave_one_out(shapes, faces, names, *, by: str = "scan", options=None, progr
         raise ShapeModelError(f"leave-one-out needs at least 2 groups, the results form {len(order)} (by {by})")
     g = np.array(groups)
     rows = []
-    for grp in tqdm(order, desc="leave-one-out", unit="fold", disable=not progress):
+    for grp in tqdm(order, desc="leave-one-out", unit="fold", disable=not progress, delay=1.0):
         out = g == grp
         if (~out).sum() < 2:
             raise ShapeModelError(f"leaving out {grp!r} leaves {(~out).sum()} shape(s): a model needs 2")

@@ -76,13 +76,23 @@ def principal_components(data, *, modes: int | None = None, variance: float | No
         w, v = sig ** 2, None
     total = float(np.sum(np.clip(w, 0, None))) / (n - 1)
     floor = RELATIVE_EIGENVALUE_FLOOR * max(float(w[0]), 0.0)
-    rank = int(min(np.sum(w > floor), n - 1)) if w[0] > 0 else 0
+    # no variation at all (identical shapes): round-off of the data's own size
+    none = float(w[0]) <= 1e-20 * float(np.sum(x * x))
+    rank = 0 if none else int(min(np.sum(w > floor), n - 1))
     variances = w[:rank] / (n - 1)
     k = n_modes_for(variances, total, modes=modes, variance=variance)
-    if v is not None:
-        sig = np.sqrt(w[:k])
-        comps = (xc.T @ v[:, :k] / sig).T  # X^T v_k / sigma_k: unit vectors along the data
-        scores = v[:, :k] * sig
+    if v is not None and k:
+        approx = xc.T @ v[:, :k] / np.sqrt(w[:k])  # X^T u_k / sigma_k: unit vectors along the data
+        # The Gram matrix squares the condition number: small modes come out a little off
+        # orthogonal (~eps * w_0 / w_k). Orthonormalise (Householder QR keeps the leading
+        # directions) and re-solve within that span (Rayleigh-Ritz: a K-column SVD of X Q).
+        q, _ = np.linalg.qr(approx)
+        u2, sig2, wt2 = np.linalg.svd(xc @ q, full_matrices=False)
+        comps = wt2 @ q.T
+        scores = u2 * sig2
+        variances = sig2 ** 2 / (n - 1)
+    elif v is not None:
+        comps, scores = np.zeros((0, d)), np.zeros((n, 0))
     else:
         comps = vt[:k]
         scores = xc @ comps.T

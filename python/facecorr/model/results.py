@@ -158,7 +158,9 @@ def read_results(results_dir, *, neutral: bool = False, include_flagged: bool = 
         raise ShapeModelError(f"{root}: a shape model needs at least 2 results, {len(chosen)} usable{why}")
     shapes = np.empty((len(chosen), n_vertices, 3))
     faces = None
-    for i, (name, mesh, to_mm) in enumerate(tqdm(chosen, desc="reading", unit="result", disable=not progress)):
+    # the bar shows only when reading takes over a second (a few results are read at once)
+    bar = tqdm(chosen, desc="reading", unit="result", disable=not progress, delay=1.0)
+    for i, (name, mesh, to_mm) in enumerate(bar):
         if neutral:
             mesh = mesh.with_name(mesh.stem + NEUTRAL_SUFFIX)
         v, f = _read_vertices_faces(mesh)

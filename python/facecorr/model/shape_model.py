@@ -119,7 +119,7 @@ class ShapeModel:
         """
         k = self.n_modes if n_modes is None else int(min(max(n_modes, 0), self.n_modes))
         aligned, (r, s, t) = self.align(vertices)
-        comps = self.components[:k].reshape(k, -1)
+        comps = self.components[:k].reshape(k, 3 * self.n_vertices)
         b = comps @ (aligned - self.mean).reshape(-1)
         recon = self.mean + (b @ comps).reshape(self.mean.shape)
         with np.errstate(divide="ignore", invalid="ignore"):
