@@ -355,7 +355,8 @@ def test_read_results_refuses_with_one_line(tmp_path, population, case, message)
 # --- exports --------------------------------------------------------------------------------------
 
 def test_statismo_file_has_the_published_layout(model, tmp_path):
-    h5py = pytest.importorskip("h5py")
+    import h5py
+
     from facecorr.model.export import write_statismo
 
     p = tmp_path / "m.h5"
@@ -391,6 +392,28 @@ def test_statismo_file_has_the_published_layout(model, tmp_path):
         assert isinstance(b["builderName"][()], bytes) and isinstance(b["buildTime"][()], bytes)
         assert [b["dataInfo"][f"URI_{i}"][()].decode() for i in range(model.n_scans)] == model.names
         assert b["parameters"]["alignment"][()] == b"rigid"
+
+
+def test_statismo_without_h5py_is_one_line_and_writes_nothing(model, tmp_path, monkeypatch, capsys):
+    import sys
+
+    model.save(tmp_path / "m.npz")
+    monkeypatch.setitem(sys.modules, "h5py", None)  # `import h5py` raises ImportError
+    rc, cap = _cli(capsys, "model", "export", tmp_path / "m.npz", "--statismo", tmp_path / "m.h5",
+                   "--ply-modes", tmp_path / "plys")
+    assert rc == 2 and "facecorr[hdf5]" in _error_line(cap.err)
+    assert not (tmp_path / "m.h5").exists() and not (tmp_path / "plys").exists()
+
+
+def test_help_lists_the_model_commands(capsys):
+    import re
+
+    with pytest.raises(SystemExit):
+        _cli(capsys, "--help")
+    assert "model" in set(re.findall(r"^    (\S+)", capsys.readouterr().out, flags=re.M))
+    with pytest.raises(SystemExit):
+        _cli(capsys, "model", "--help")
+    assert {"build", "show", "export", "eval"} <= set(re.findall(r"^    (\S+)", capsys.readouterr().out, flags=re.M))
 
 
 def test_ply_modes(model, tmp_path):
@@ -435,7 +458,8 @@ def _cli(capsys, *args):
 
 
 def test_cli_build_show_export_eval(batch, tmp_path, capsys):
-    h5py = pytest.importorskip("h5py")
+    import h5py
+
     assert json.loads((batch / "M0001" / "M0001_NE00_F3D.json").read_text())["units"] == "cm"
     npz = tmp_path / "model.npz"
     rc, cap = _cli(capsys, "model", "build", batch, "-o", npz, "--modes", "2")

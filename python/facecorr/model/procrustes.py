@@ -48,7 +48,7 @@ def fit_onto(centred, target, *, scale: bool):
     ``centred`` (S, N, 3) and ``target`` (N, 3) must both have their centroid at the origin
     (then the best translation is zero). Reflections are never allowed.
     """
-    h = np.einsum("sni,nj->sij", centred, target)  # sum_n x_n y_n^T per shape
+    h = np.matmul(centred.transpose(0, 2, 1), target)  # sum_n x_n y_n^T per shape (batched BLAS)
     u, sig, vt = np.linalg.svd(h)
     d = np.sign(np.linalg.det(np.einsum("sji,skj->sik", vt, u)))  # det(V U^T)
     d[d == 0] = 1.0
@@ -57,8 +57,13 @@ def fit_onto(centred, target, *, scale: bool):
     rot = np.einsum("sji,sj,skj->sik", vt, fix, u)  # V diag(fix) U^T
     if not scale:
         return rot, np.ones(len(h))
-    ss = np.einsum("snj,snj->s", centred, centred)
+    ss = np.square(centred).sum(axis=(1, 2))
     return rot, np.einsum("sj,sj->s", sig, fix) / np.maximum(ss, 1e-300)
+
+
+def _transformed(centred, rot, s) -> np.ndarray:
+    """(S, N, 3): ``s_i * X_i @ R_i.T`` for every shape."""
+    return np.matmul(centred, rot.transpose(0, 2, 1)) * s[:, None, None]
 
 
 def generalized_procrustes(shapes, *, scale: bool = False, reference=None, max_iterations: int = 100,
@@ -97,7 +102,7 @@ def generalized_procrustes(shapes, *, scale: bool = False, reference=None, max_i
     converged, it = False, 0
     for it in range(1, max_iterations + 1):
         rot, s = fit_onto(c, ref, scale=scale)
-        mean = np.einsum("s,snj,sij->ni", s, c, rot) / len(x)
+        mean = _transformed(c, rot, s).mean(axis=0)
         if scale:  # the mean's size is free under similarity: hold it at the inputs' average
             mean *= target_size / max(float(centroid_size(mean)), 1e-300)
         moved = float(np.sqrt(np.sum((mean - ref) ** 2))) / max(float(centroid_size(mean)), 1e-300)
@@ -117,7 +122,7 @@ def generalized_procrustes(shapes, *, scale: bool = False, reference=None, max_i
         shift = ref_pts.mean(axis=0)
     else:
         shift = np.zeros(3)
-    aligned = np.einsum("s,snj,sij->sni", s, c, rot) + shift
+    aligned = _transformed(c, rot, s) + shift
     # aligned = s R (x - c) + shift = s x R^T + (shift - s R c)
     translations = shift - s[:, None] * np.einsum("sij,sj->si", rot, centroids)
     return ProcrustesResult(aligned=aligned, mean=aligned.mean(axis=0), rotations=rot, scales=s,
