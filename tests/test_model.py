@@ -397,12 +397,20 @@ def test_statismo_file_has_the_published_layout(model, tmp_path):
 def test_statismo_without_h5py_is_one_line_and_writes_nothing(model, tmp_path, monkeypatch, capsys):
     import sys
 
+    import h5py
+
     model.save(tmp_path / "m.npz")
     monkeypatch.setitem(sys.modules, "h5py", None)  # `import h5py` raises ImportError
     rc, cap = _cli(capsys, "model", "export", tmp_path / "m.npz", "--statismo", tmp_path / "m.h5",
                    "--ply-modes", tmp_path / "plys")
     assert rc == 2 and "facecorr[hdf5]" in _error_line(cap.err)
     assert not (tmp_path / "m.h5").exists() and not (tmp_path / "plys").exists()
+    monkeypatch.setitem(sys.modules, "h5py", h5py)
+    # an unwritable statismo path: refused before the PLY meshes are written
+    (tmp_path / "dir.h5").mkdir()
+    rc, cap = _cli(capsys, "model", "export", tmp_path / "m.npz", "--statismo", tmp_path / "dir.h5",
+                   "--ply-modes", tmp_path / "plys")
+    assert rc == 2 and "is a folder" in _error_line(cap.err) and not (tmp_path / "plys").exists()
 
 
 def test_help_lists_the_model_commands(capsys):

@@ -158,7 +158,7 @@ def cmd_show(args) -> int:
 def cmd_export(args) -> int:
     from ..errors import FacecorrError, OutputError
     from ..model import ShapeModel
-    from ..model.export import write_mode_plys, write_statismo
+    from ..model.export import export_model
 
     if not args.statismo and not args.ply_modes:
         raise FacecorrError("facecorr model export: give --statismo OUT.h5 and/or --ply-modes DIR")
@@ -166,17 +166,12 @@ def cmd_export(args) -> int:
         raise FacecorrError("facecorr model export: --modes only applies to --ply-modes")
     if args.statismo and Path(args.statismo).suffix.lower() not in (".h5", ".hdf5"):
         raise OutputError(f"{args.statismo}: a statismo model is written as .h5")
-    if args.statismo:  # refuse a missing h5py before any output is written
-        try:
-            import h5py  # noqa: F401
-        except ImportError:
-            raise FacecorrError("--statismo needs h5py: pip install 'facecorr[hdf5]'") from None
     model = ShapeModel.load(args.model)
+    export_model(model, statismo=args.statismo, ply_dir=args.ply_modes, n_modes=args.modes)
     if args.ply_modes:
-        paths = write_mode_plys(model, args.ply_modes, n_modes=args.modes)
-        print(f"{args.ply_modes}: {len(paths)} PLY meshes (mean, -/+ 3 sd of {(len(paths) - 1) // 2} modes)")
+        k = model.n_modes if args.modes is None else min(args.modes, model.n_modes)
+        print(f"{args.ply_modes}: {1 + 2 * k} PLY meshes (mean, -/+ 3 sd of {k} modes)")
     if args.statismo:
-        write_statismo(model, args.statismo)
         print(f"{args.statismo}: statismo 0.9 model, {model.n_modes} modes, {model.n_vertices} points")
     return 0
 
