@@ -292,7 +292,7 @@ def _write_result(folder, stem, vertices_mm, faces, units="mm", flags=(), neutra
         save_mesh(folder / f"{stem}_neutral.ply", (neutral, faces), units=units)
 
 
-def test_read_results_units_flags_and_neutral(tmp_path, population):
+def test_read_results_units_flags_and_neutral(tmp_path, population, capsys):
     shapes, faces = population
     root = tmp_path / "res"
     _write_result(root / "A", "a_mm", shapes[0], faces, neutral=shapes[3])
@@ -304,13 +304,21 @@ def test_read_results_units_flags_and_neutral(tmp_path, population):
     (root / "failures.json").write_text(json.dumps([{"scan": "x.ply", "ok": False, "error": "bad input"}]))
     rs = read_results(root, progress=False)
     assert rs.names == ["A/a_mm", "A/b_cm", "B/c_m"] and rs.n_failed == 1
-    assert rs.skipped == [("B/d_bad", "flagged: implausible_fit:expression at its bound")]
+    assert rs.skipped == [("B/d_bad", ["implausible_fit:expression at its bound"])]
     np.testing.assert_allclose(rs.shapes, shapes[:3], atol=1e-9)  # every one back in mm
     np.testing.assert_array_equal(rs.faces, faces)
     rs = read_results(root, include_flagged=True, progress=False)
     assert rs.names[-1] == "B/d_bad" and not rs.skipped
     rs = read_results(root, neutral=True, progress=False)
     np.testing.assert_allclose(rs.shapes, shapes[3:6], atol=1e-9)
+    # the command line names what it left out
+    from facecorr.cli import main
+
+    assert main(["model", "build", str(root), "-o", str(tmp_path / "m.npz"), "--neutral"]) == 0
+    out = capsys.readouterr().out
+    assert "skipped 1 flagged result(s) (implausible_fit 1; --include-flagged keeps them): B/d_bad" in out
+    assert "1 scan(s) failed registration" in out and "3 scans" in out and "expression-removed" in out
+    assert ShapeModel.load(tmp_path / "m.npz").source == "neutral"
 
 
 @pytest.mark.parametrize("case,message", [

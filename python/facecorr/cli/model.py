@@ -99,9 +99,9 @@ def _options(args):
 def _report_reading(rs) -> None:
     if rs.skipped:
         kinds: dict = {}
-        for _, why in rs.skipped:
-            for f in why.removeprefix("flagged: ").split(", "):
-                kinds[f.split(":", 1)[0]] = kinds.get(f.split(":", 1)[0], 0) + 1
+        for _, flags in rs.skipped:
+            for kind in dict.fromkeys(f.split(":", 1)[0] for f in flags):
+                kinds[kind] = kinds.get(kind, 0) + 1
         print(f"skipped {len(rs.skipped)} flagged result(s) ("
               + ", ".join(f"{k} {n}" for k, n in sorted(kinds.items()))
               + "; --include-flagged keeps them): " + ", ".join(n for n, _ in rs.skipped[:5])
@@ -145,8 +145,8 @@ def cmd_show(args) -> int:
     check_output_paths([("-o", out)], inputs=[args.model])
     model = ShapeModel.load(args.model)
     kept = float(model.explained_variance().sum())
-    title = (f"{Path(args.model).name}: {model.n_scans} {'expression-removed' if model.source == 'neutral' else ''}"
-             f"{' ' if model.source == 'neutral' else ''}scans, {model.n_modes} modes ({100 * kept:.1f} % of the "
+    what = "expression-removed scans" if model.source == "neutral" else "scans"
+    title = (f"{Path(args.model).name}: {model.n_scans} {what}, {model.n_modes} modes ({100 * kept:.1f} % of the "
              f"variance), {model.alignment} alignment; the faces differ from the mean by "
              f"{(model.total_variance / model.n_vertices) ** 0.5:.1f} mm RMS per vertex")
     plot_shape_modes(model.mean, model.components, model.std, model.faces, model.explained_variance(), out,

@@ -44,8 +44,9 @@ class ResultSet:
     Attributes
     ----------
     shapes : (S, N, 3) float64 mm, each in its scan's frame; names : list of S str (the result's
-    path under the folder, without suffix); faces : (M, 3) int64; skipped : list of (name, reason)
-    for the results left out; n_failed : int, scans listed in failures.json (no result).
+    path under the folder, without suffix); faces : (M, 3) int64; skipped : list of (name, flags)
+    for the results left out (their doubtful flags); n_failed : int, scans listed in failures.json
+    (no result).
     """
 
     shapes: np.ndarray
@@ -139,7 +140,7 @@ def read_results(results_dir, *, neutral: bool = False, include_flagged: bool = 
         flags = data.get("flags") or []
         bad = doubtful_flags(flags if isinstance(flags, list) else [])
         if bad and not include_flagged:
-            skipped.append((name, "flagged: " + ", ".join(f.split(" (")[0] for f in bad)))
+            skipped.append((name, bad))
             continue
         mesh = path.with_suffix(".ply")
         if not mesh.is_file():
