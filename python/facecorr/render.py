@@ -208,7 +208,8 @@ def plot_shape_modes(mean, components, std, faces, explained, path, *, n_modes: 
     k = int(min(n_modes, len(std)))
     normals = vertex_normals(mean, faces)
     views = [("front", view_rotation(0, 0)), ("side", view_rotation(90, 0))]
-    fig = plt.figure(figsize=(15, 2.6 * k + 3.0))
+    height = 2.6 * k + 3.0
+    fig = plt.figure(figsize=(15, height))
     gs = fig.add_gridspec(k + 1, 7, height_ratios=[1] * k + [1.15], width_ratios=[1, 1, 1, 0.75, 0.75, 0.75, 0.08],
                           hspace=0.25, wspace=0.02)
     for i in range(k):
@@ -244,7 +245,7 @@ def plot_shape_modes(mean, components, std, faces, explained, path, *, n_modes: 
     ax.legend(loc="center right", fontsize=8)
     ax.grid(alpha=0.25)
     if title:
-        fig.suptitle(title, fontsize=11, y=0.93)
+        fig.suptitle(title, fontsize=11, y=fig.subplotpars.top + 0.6 / height)  # ~0.6 in above the grid
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=85, bbox_inches="tight")
     plt.close(fig)
