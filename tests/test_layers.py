@@ -16,7 +16,7 @@ FLOORS = {
     "template": 3, "synth": 3, "render": 3,
     "landmarks": 4, "registration": 4,
     "pipeline": 5,
-    "evaluation": 6, "report": 6,
+    "evaluation": 6, "model": 6, "report": 6,
     "cli": 7,
 }
 #: the package's façade and the alias table of moved paths sit above the floors

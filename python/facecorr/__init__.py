@@ -15,7 +15,7 @@ or from a lower floor (never upwards, never sideways between two packages of one
 ``tests/test_layers.py`` reads every import, function-level ones too, and enforces it.
 
     7  cli                              every sub-command; nothing imports it
-    6  evaluation, report               tables and metrics on a synthetic database; a batch's report page
+    6  evaluation, model, report        tables and metrics on a synthetic database; shape models; a batch's report page
     5  pipeline                         one scan end to end; many scans (batch)
     4  landmarks, registration          the two stages
     3  template, synth, render          the template, the synthetic database, all plotting

@@ -37,3 +37,8 @@ class RegistrationError(FacecorrError):
 class OutputError(FacecorrError, OSError):
     """An output cannot be written there: a folder, a parent that is a file, no permission, two
     outputs (or an output and an input) naming the same file, a failed write."""
+
+
+class ShapeModelError(FacecorrError, ValueError):
+    """A statistical shape model cannot be built or read: no usable results, results that do not
+    match, a missing or broken model file."""

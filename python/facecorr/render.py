@@ -363,3 +363,77 @@ def histogram_png(values, *, xlabel: str, title: str, thresholds=(), bins: int =
     fig.savefig(buf, format="png")
     plt.close(fig)
     return buf.getvalue()
+
+
+def plot_shape_modes(mean, components, std, faces, explained, path, *, n_modes: int = 3, sigma: float = 3.0,
+                     title: str | None = None) -> None:
+    """PNG of a shape model's first modes and its explained variance.
+
+    One row per mode: the mean -/+ ``sigma`` standard deviations of the mode, front and side
+    view, coloured by the signed displacement from the mean along the mean's normals (mm; red
+    outwards, blue inwards), with the mean itself between them; below, each mode's share of the
+    total variance (bars) and the cumulative share (line).
+
+    Parameters
+    ----------
+    mean : (N, 3) mm in the template's frame (+y up, +z out of the face); components : (K, N, 3)
+    orthonormal; std : (K,) standard deviations (mm); faces : (M, 3); explained : (K,) each mode's
+    share of the total variance.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .geometry.mesh import vertex_normals
+    from .geometry.transforms import view_rotation
+    from .io.atomic import atomic_path
+
+    mean = np.asarray(mean, dtype=np.float64)
+    comps = np.asarray(components, dtype=np.float64)
+    std = np.asarray(std, dtype=np.float64)
+    explained = np.asarray(explained, dtype=np.float64)
+    k = int(min(n_modes, len(std)))
+    normals = vertex_normals(mean, faces)
+    views = [("front", view_rotation(0, 0)), ("side", view_rotation(90, 0))]
+    height = 2.6 * k + 3.0
+    fig = plt.figure(figsize=(15, height))
+    gs = fig.add_gridspec(k + 1, 7, height_ratios=[1] * k + [1.15], width_ratios=[1, 1, 1, 0.75, 0.75, 0.75, 0.08],
+                          hspace=0.25, wspace=0.02)
+    for i in range(k):
+        lo, hi = mean - sigma * std[i] * comps[i], mean + sigma * std[i] * comps[i]
+        d_hi = np.einsum("ij,ij->i", hi - mean, normals)
+        vmax = max(float(np.abs(d_hi).max()), 1e-6)
+        col = 0
+        for vname, rot in views:
+            for label, v, d in ((f"-{sigma:g} sd", lo, -d_hi), ("mean", mean, None), (f"+{sigma:g} sd", hi, d_hi)):
+                ax = fig.add_subplot(gs[i, col])
+                col += 1
+                if d is None:
+                    draw_mesh(ax, v, faces, rotation=rot)
+                else:
+                    sm = draw_mesh(ax, v, faces, rotation=rot, values=d, cmap="RdBu_r", vmin=-vmax, vmax=vmax)
+                head = f"mode {i + 1} ({100 * explained[i]:.1f} %) " if col == 1 else f"mode {i + 1} "
+                ax.set_title(f"{head}{label} ({vname})" if label != "mean" else f"mean ({vname})", fontsize=9)
+        cax = fig.add_subplot(gs[i, 6])
+        fig.colorbar(sm, cax=cax, label="mm along the normal")
+    ax = fig.add_subplot(gs[k, 1:6])
+    shown = min(len(explained), 40)
+    x = np.arange(1, shown + 1)
+    ax.bar(x, 100 * explained[:shown], color="#7a9cc6", label="each mode")
+    cum = 100 * np.cumsum(explained)[:shown]
+    ax.plot(x, cum, "o-", color="#c0392b", ms=3.5, label="cumulative")
+    for level in (90, 98):
+        ax.axhline(level, color="grey", lw=0.6, ls=":")
+        ax.text(shown + 0.6, level, f"{level} %", fontsize=7, va="center", color="grey")
+    ax.set_xlim(0.3, shown + 2.5)
+    ax.set_ylim(0, 102)
+    ax.set_xlabel("mode")
+    ax.set_ylabel("share of the total variance [%]")
+    ax.legend(loc="center right", fontsize=8)
+    ax.grid(alpha=0.25)
+    if title:
+        fig.suptitle(title, fontsize=11, y=fig.subplotpars.top + 0.6 / height)  # ~0.6 in above the grid
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=85, bbox_inches="tight")
+    plt.close(fig)

@@ -1,8 +1,9 @@
 """The ``facecorr`` command line.
 
 The top floor: every sub-command, one module per group (:mod:`.register`: register, batch, demo;
-:mod:`.report`; :mod:`.landmarks`; :mod:`.train`; :mod:`.evaluate`: the ``eval`` group;
-:mod:`.template`; :mod:`.synth`), each with an ``add_commands(subparsers)``. Nothing in the package imports the CLI.
+:mod:`.report`; :mod:`.landmarks`; :mod:`.train`; :mod:`.evaluate`: the ``eval`` group; :mod:`.model`: the
+``model`` group (shape models); :mod:`.template`;
+:mod:`.synth`), each with an ``add_commands(subparsers)``. Nothing in the package imports the CLI.
 Heavy imports happen inside the handlers so ``facecorr --help`` is quick.
 A user's mistake (:class:`facecorr.errors.FacecorrError`) prints one line and exits 2; anything
 else is our fault: one line naming it, exit 1 (``FACECORR_DEBUG=1`` shows the traceback). A usage
@@ -20,7 +21,7 @@ import sys
 from ..errors import FacecorrError
 
 #: Modules contributing sub-commands, in help order.
-COMMAND_MODULES = ("register", "report", "landmarks", "train", "evaluate", "template", "synth")
+COMMAND_MODULES = ("register", "report", "landmarks", "train", "evaluate", "model", "template", "synth")
 
 
 class Parser(argparse.ArgumentParser):
