@@ -56,7 +56,7 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, Appearance]:
     if "\\" in text:  # line continuation: a backslash at the end of a line
         text = re.sub(r"\\[ \t]*(?:\r\n|\r|\n)", " ", text)
     lines = text.splitlines()
-    parsed = _obj_fast(lines)
+    parsed = _obj_fast(lines, "usemtl" in text or "mtllib" in text)
     if parsed is None:
         parsed = _obj_general(path, lines)
     return parsed["V"], parsed["F"], _appearance(path, parsed)
@@ -171,46 +171,47 @@ def _texture_index(fields: list, n_vt: int) -> int:
     return n_vt + t if -t <= n_vt and t < 0 else -1
 
 
-def _obj_fast(lines: list) -> dict | None:
+def _obj_fast(lines: list, materials_named: bool = True) -> dict | None:
     """The reader's result for the common plain OBJ (``v x y z [r g b]``, ``vt u v``, triangles
     ``f i j k`` / ``f i/t ...`` / ``f i/t/n ...`` with positive indices) in a few numpy calls; None
     if the file has anything else in its v/vt/f lines (:func:`_obj_general` then reads it and
-    reports errors by line)."""
-    vl, vtl, fl = [], [], []
+    reports errors by line). ``materials_named``: the text holds "usemtl" or "mtllib" at all."""
+    vl = [ln for ln in lines if ln[:2] == "v "]
+    fl = [ln for ln in lines if ln[:2] == "f "]
+    vtl = [ln for ln in lines if ln[:3] == "vt "]
+    n_vf = sum(1 for ln in lines if ln.lstrip()[:1] in ("v", "f") and ln.lstrip()[:2] not in ("vn", "vp"))
+    if n_vf != len(vl) + len(fl) + len(vtl):
+        return None  # indented, tabs, "vt" without a space, ...: the general reader
     materials, mtllibs, mat_at = [], [], []  # mat_at: (number of faces before it, material)
-    for ln in lines:
-        h = ln[:2]
-        if h == "v ":
-            vl.append(ln)
-        elif h == "f ":
-            fl.append(ln)
-        elif h == "vt":
-            vtl.append(ln)
-        elif ln[:7] == "usemtl ":
-            name = " ".join(ln[7:].split("#", 1)[0].split())
-            if name not in materials:
-                materials.append(name)
-            mat_at.append((len(fl), materials.index(name)))
-        elif ln[:7] == "mtllib ":
-            mtllibs.extend(ln[7:].split("#", 1)[0].split())
-        else:
-            s = ln.lstrip()[:3]
-            if s[:1] in ("v", "f") and s[:2] not in ("vn", "vp") or s[:3] in ("use", "mtl"):
-                return None  # indented, tabs, vt without a space, ...: the general reader
-    if vtl and any(ln[:3] != "vt " for ln in vtl):
-        return None
+    if materials_named:  # the file's text mentions usemtl / mtllib
+        n_faces = 0
+        for ln in lines:
+            if ln[:2] == "f ":
+                n_faces += 1
+            elif ln[:7] == "usemtl ":
+                name = " ".join(ln[7:].split("#", 1)[0].split())
+                if name not in materials:
+                    materials.append(name)
+                mat_at.append((n_faces, materials.index(name)))
+            elif ln[:7] == "mtllib ":
+                mtllibs.extend(ln[7:].split("#", 1)[0].split())
+            elif ln.lstrip()[:6] in ("usemtl", "mtllib"):
+                return None
     vtxt, ftxt = " ".join(vl), " ".join(fl)
     if "#" in vtxt or any(c in ftxt for c in "#-_+") or "//" in ftxt:
         return None
     vt = vtxt.split()
-    if not vl or len(vt) not in (4 * len(vl), 7 * len(vl)) or len(set(map(len, map(str.split, vl)))) != 1:
+    # a fixed number of tokens per line: the keywords sit at every per-line stride, nowhere else
+    if not vl or len(vt) not in (4 * len(vl), 7 * len(vl)):
         return None
     per_v = len(vt) // len(vl)
+    if set(vt[::per_v]) != {"v"}:
+        return None
     ft = ftxt.replace("/", " ").split()
     per_f = len(ft) // len(fl) if fl else 4
     if per_f not in (4, 7, 10) or len(ft) != per_f * len(fl) or ("/" in ftxt) != (per_f > 4):
         return None
-    if len(set(map(len, map(str.split, fl)))) > 1:  # every face a triangle (not a quad and a line)
+    if fl and set(ft[::per_f]) != {"f"}:  # every face a triangle (not a quad and a line)
         return None
     if per_f > 4 and ftxt.count("/") != (per_f - 4) // 3 * 3 * len(fl):
         return None
@@ -220,7 +221,7 @@ def _obj_fast(lines: list) -> dict | None:
         uv = np.zeros((0, 2))
         if vtl:
             vtt = " ".join(vtl).split()
-            if len(vtt) not in (3 * len(vtl), 4 * len(vtl)) or len(set(map(len, map(str.split, vtl)))) != 1:
+            if len(vtt) not in (3 * len(vtl), 4 * len(vtl)) or set(vtt[::len(vtt) // len(vtl)]) != {"vt"}:
                 return None
             uv = np.array(vtt, dtype=object).reshape(len(vtl), -1)[:, 1:3].astype(np.float64)
     except (ValueError, OverflowError):
