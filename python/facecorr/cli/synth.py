@@ -25,6 +25,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--pitch", type=float, default=None, help="max |pitch|, degrees (default 30)")
     p.add_argument("--roll", type=float, default=None, help="max |roll|, degrees (default 30)")
     p.add_argument("--any-rotation", action="store_true", help="uniformly random rotation instead of yaw/pitch/roll ranges")
+    p.add_argument("--colour", choices=("vertex", "texture"), default=None,
+                   help="also colour the scans (a smooth skin pattern with exact ground truth): vertex = PLY with "
+                        "per-vertex RGB, texture = OBJ + MTL + PNG")
     p.add_argument("--preview", metavar="PNG", default=None, help="also write a contact sheet of the first subject")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run_synth)
@@ -43,7 +46,7 @@ def run_synth(args) -> int:
         subjects=args.subjects, subset=args.subset,
         expressions=args.expressions.split(",") if args.expressions else None,
         levels=args.levels.split(",") if args.levels else None,
-        progress=not args.quiet, **opts,
+        progress=not args.quiet, colour=args.colour, **opts,
     )
     dt = time.perf_counter() - t0
     print(f"{len(recs)} scans in {dt:.1f} s -> {args.out_dir}/index.json", file=sys.stderr)

@@ -4,6 +4,11 @@ A :class:`Mesh` holds vertices in **millimetres** (float64, (N, 3)) and triangle
 plus the factor that took the file's units to millimetres so results can be written back in the
 scan's own units. Derived quantities (normals, areas, boundary, components, KD-tree) are computed
 once on first use; a Mesh is treated as immutable after construction.
+
+A scan's colour, when its file has one, travels with the mesh through every step that renumbers
+vertices or triangles (:meth:`Mesh.submesh`, :meth:`Mesh.centred_outward`, the loader's
+cleaning): per-vertex RGB (``vertex_colors``) or a texture image with per-corner texture
+coordinates (``face_uv`` + ``texture``); :mod:`facecorr.geometry.colour` samples it.
 """
 
 from __future__ import annotations
@@ -39,6 +44,14 @@ class Mesh:
         The source's units: "mm", "cm" or "m".
     source : str or None
         Where the mesh came from (a path), for messages.
+    meta : dict, counts and notes of the loader.
+    vertex_colors : (N, 3) float array in [0, 1], or None
+        Per-vertex RGB (stored as float32; uint8 input is divided by 255, an alpha column dropped).
+    face_uv : (M, 3, 2) float array, or None
+        Texture coordinates of each triangle's three corners (a corner can differ between the
+        triangles of one vertex: texture seams); given together with ``texture``.
+    texture : (H, W, 3) uint8 image, or None
+        The texture image, row 0 at the top (conventions: :mod:`facecorr.geometry.colour`).
     """
 
     vertices: np.ndarray
@@ -47,6 +60,9 @@ class Mesh:
     units: str = "mm"
     source: str | None = None
     meta: dict = field(default_factory=dict)
+    vertex_colors: np.ndarray | None = None
+    face_uv: np.ndarray | None = None
+    texture: np.ndarray | None = None
 
     def __post_init__(self):
         name = self.source or "mesh"
@@ -70,6 +86,52 @@ class Mesh:
         if f.min() < 0 or f.max() >= len(v):
             raise MeshError(f"{name}: face indices out of range [0, {len(v) - 1}]")
         self.vertices, self.faces = v, f
+        self._check_colour(name)
+
+    def _check_colour(self, name: str) -> None:
+        """Validate and normalise the optional colour fields (MeshError on a mismatch)."""
+        if self.vertex_colors is not None:
+            c = np.asarray(self.vertex_colors)
+            if c.ndim != 2 or c.shape[0] != len(self.vertices) or c.shape[1] not in (3, 4):
+                raise MeshError(f"{name}: vertex_colors must have shape ({len(self.vertices)}, 3), got {c.shape}")
+            c = c[:, :3].astype(np.float32) / (255.0 if c.dtype == np.uint8 else 1.0)
+            if not np.isfinite(c).all() or c.min() < 0.0 or c.max() > 1.0:
+                raise MeshError(f"{name}: vertex_colors must be finite values in [0, 1] (or uint8)")
+            self.vertex_colors = np.ascontiguousarray(c, dtype=np.float32)
+        if (self.face_uv is None) != (self.texture is None):
+            raise MeshError(f"{name}: face_uv and texture go together (one is missing)")
+        if self.face_uv is not None:
+            uv = np.ascontiguousarray(self.face_uv, dtype=np.float64)
+            if uv.shape != (len(self.faces), 3, 2):
+                raise MeshError(f"{name}: face_uv must have shape ({len(self.faces)}, 3, 2), got {uv.shape}")
+            if not np.isfinite(uv).all():
+                raise MeshError(f"{name}: face_uv has NaN or infinite texture coordinates")
+            img = np.asarray(self.texture)
+            if img.ndim == 2:
+                img = np.repeat(img[:, :, None], 3, axis=2)
+            if img.ndim != 3 or img.shape[2] not in (3, 4) or img.dtype != np.uint8 or 0 in img.shape:
+                raise MeshError(f"{name}: texture must be an (H, W, 3) uint8 image, got {img.dtype} {img.shape}")
+            self.face_uv, self.texture = uv, np.ascontiguousarray(img[:, :, :3])
+
+    @property
+    def color_source(self) -> str | None:
+        """"texture" (texture image + coordinates; preferred when a file has both), "vertex"
+        (per-vertex RGB) or None (no colour)."""
+        if self.face_uv is not None:
+            return "texture"
+        return "vertex" if self.vertex_colors is not None else None
+
+    def _colour_of(self, vertex_ids=None, face_ids=None, face_corners=None) -> dict:
+        """The colour fields of a mesh made of ``vertex_ids`` / ``face_ids`` of this one (corners
+        reordered by ``face_corners``), as keyword arguments for :class:`Mesh`."""
+        out = {}
+        if self.vertex_colors is not None:
+            out["vertex_colors"] = self.vertex_colors if vertex_ids is None else self.vertex_colors[vertex_ids]
+        if self.face_uv is not None:
+            uv = self.face_uv if face_ids is None else self.face_uv[face_ids]
+            out["face_uv"] = uv if face_corners is None else uv[:, face_corners]
+            out["texture"] = self.texture
+        return out
 
     @property
     def n_vertices(self) -> int:
@@ -162,10 +224,11 @@ class Mesh:
             moved = self
         else:
             moved = Mesh(self.vertices - offset, self.faces, to_mm=self.to_mm, units=self.units, source=self.source,
-                         meta=dict(self.meta))
+                         meta=dict(self.meta), **self._colour_of())
         if moved.signed_volume < 0:
             moved = Mesh(moved.vertices, moved.faces[:, [0, 2, 1]], to_mm=self.to_mm, units=self.units,
-                         source=self.source, meta={**self.meta, "rewound": True})
+                         source=self.source, meta={**self.meta, "rewound": True},
+                         **self._colour_of(face_corners=[0, 2, 1]))
         return moved, offset
 
     def submesh(self, vertex_mask: np.ndarray) -> tuple[Mesh, np.ndarray]:
@@ -178,7 +241,7 @@ class Mesh:
         Returns
         -------
         mesh : Mesh with the selected vertices (in ascending id order) and the triangles whose
-            three vertices are all selected; same units/to_mm/source, meta copied.
+            three vertices are all selected; same units/to_mm/source, meta copied, colour kept.
         old_ids : (K,) int64, ``old_ids[i]`` is the id in ``self`` of the new vertex ``i``.
 
         Raises
@@ -203,7 +266,8 @@ class Mesh:
         new_id = np.full(self.n_vertices, -1, dtype=np.int64)
         new_id[old_ids] = np.arange(len(old_ids))
         sub = Mesh(self.vertices[old_ids], new_id[self.faces[keep]], to_mm=self.to_mm,
-                   units=self.units, source=self.source, meta=dict(self.meta))
+                   units=self.units, source=self.source, meta=dict(self.meta),
+                   **self._colour_of(vertex_ids=old_ids, face_ids=np.flatnonzero(keep)))
         return sub, old_ids
 
     def largest_component(self) -> tuple[Mesh, np.ndarray]:
@@ -219,6 +283,14 @@ class Mesh:
         from .spatial import KDTree
 
         return KDTree(self.vertices)
+
+    @cached_property
+    def triangle_set(self):
+        """:class:`facecorr.geometry.closest.TriangleSet` of the triangles (closest-point queries;
+        built on first use, with the KD-tree)."""
+        from .closest import TriangleSet
+
+        return TriangleSet(self.vertices, self.faces, tree=self.kdtree)
 
     @property
     def diagonal(self) -> float:

@@ -157,28 +157,14 @@ def voxel_subsample(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.n
 def closest_point_on_triangles(p: np.ndarray, tri: np.ndarray):
     """Closest points of triangles ``tri`` (K, 3, 3) to points ``p`` (K, 3), pairwise (mm).
 
-    The projection onto the plane when it falls inside the triangle, else the nearest point of
-    the three edges. Returns (distances (K,), closest points (K, 3))."""
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    n = np.cross(b - a, c - a)
-    nn = np.maximum(np.einsum("kd,kd->k", n, n), 1e-300)
-    h = np.einsum("kd,kd->k", p - a, n) / nn
-    best_q = p - h[:, None] * n  # projection onto the plane
-    # (near-)degenerate triangles have no usable plane: only their edges count
-    longest2 = np.max([np.einsum("kd,kd->k", e, e) for e in (b - a, c - b, a - c)], axis=0)
-    inside = nn > 1e-16 * longest2**2
-    for u, v in ((a, b), (b, c), (c, a)):
-        inside &= np.einsum("kd,kd->k", np.cross(v - u, best_q - u), n) >= 0
-    best = np.where(inside, np.linalg.norm(p - best_q, axis=1), np.inf)
-    for u, v in ((a, b), (b, c), (c, a)):
-        e = v - u
-        t = np.clip(np.einsum("kd,kd->k", p - u, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0.0, 1.0)
-        q = u + t[:, None] * e
-        d = np.linalg.norm(p - q, axis=1)
-        better = d < best
-        best = np.where(better, d, best)
-        best_q = np.where(better[:, None], q, best_q)
-    return best, best_q
+    Returns (distances (K,), closest points (K, 3)); :func:`facecorr.geometry.closest.
+    closest_points_on_triangles` (barycentric form, the one implementation) does the work.
+    """
+    from .closest import closest_points_on_triangles
+
+    tri = np.asarray(tri, dtype=np.float64).reshape(-1, 3, 3)
+    bary, dist = closest_points_on_triangles(p, tri[:, 0], tri[:, 1], tri[:, 2])
+    return dist, np.einsum("kc,kcd->kd", bary, tri)
 
 
 def surface_distance(points, vertices, faces, nearest) -> np.ndarray:

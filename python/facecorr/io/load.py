@@ -1,13 +1,21 @@
 """Loading face scans: format dispatch, validation/cleaning and unit inference.
 
-* OBJ and OFF are read by our own readers (:func:`_read_obj`, :func:`_read_off`: file order kept,
-  OBJ relative indices, CRLF, a UTF-8 BOM and non-UTF-8 bytes in comments handled, non-integer
-  face indices refused).
+* OBJ and OFF are read by our own readers (:func:`facecorr.io.obj.read_obj`, :func:`_read_off`:
+  file order kept, OBJ relative indices, CRLF, a UTF-8 BOM and non-UTF-8 bytes in comments
+  handled, non-integer face indices refused).
 * PLY, STL, GLB are read through trimesh with ``process=False``, so the file's vertex order is
   kept; every trimesh failure is translated into a one-line :class:`~facecorr.errors.MeshFileError`.
   Broken binary STL files, which trimesh reads silently, are checked first.
 * Files that are really gzip/zip/PNG/JPEG/... (a misnamed download) are refused by name.
 * VRML 2.0 (``.wrl``/``.vrml``, e.g. BU-3DFE) is read by :func:`facecorr.io.vrml.read_wrl`.
+
+Colour is kept when the file has it (``mesh.vertex_colors``, or ``mesh.face_uv`` +
+``mesh.texture``; ``meta["colour"]`` = "vertex", "texture" or None): PLY / GLB vertex colours or
+texture (trimesh; a PLY names its image in a ``comment TextureFile`` line), OBJ ``v x y z r g b``
+or ``vt`` + ``mtllib``/``map_Kd`` (:mod:`.obj`), VRML ``Color`` or ``ImageTexture`` +
+``TextureCoordinate`` (:mod:`.vrml`). Colour a file declares but that cannot be used is dropped
+with the reason in ``meta["colour_note"]`` (:mod:`.appearance`); OFF and STL colours are not read.
+The cleaning steps below renumber the colour with the vertices and triangles they keep.
 
 Validation on load (:func:`load_mesh`), in this order, with the counts in ``mesh.meta``:
 
@@ -27,7 +35,7 @@ Validation on load (:func:`load_mesh`), in this order, with the counts in ``mesh
 
 from __future__ import annotations
 
-import re
+import logging
 import warnings
 from pathlib import Path
 
@@ -35,7 +43,9 @@ import numpy as np
 
 from ..errors import MeshError, MeshFileError, UnitsError
 from ..geometry.mesh import Mesh
-from .vrml import read_wrl
+from .appearance import Appearance, read_image
+from .obj import read_obj, read_text
+from .vrml import read_wrl_with_appearance
 
 __all__ = ["MESH_FORMATS", "UNIT_TO_MM", "infer_units", "load_mesh"]
 
@@ -118,19 +128,27 @@ def one_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {msg[0]}" if msg else type(e).__name__
 
 
-def _read_trimesh(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
-    """Raw (V, F) via trimesh; F is (M, 3) or empty. Any trimesh failure -> MeshFileError."""
+def _read_trimesh(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray, Appearance]:
+    """Raw (V, F, appearance) via trimesh; F is (M, 3) or empty. Any trimesh failure -> MeshFileError."""
     import trimesh
 
     if fmt == "stl":
         _check_binary_stl(path)
     elif fmt == "ply":
         _check_ply(path)
+    logs = [logging.getLogger(n) for n in ("trimesh", *logging.root.manager.loggerDict) if n.startswith("trimesh")]
+    quiet = [lg.disabled for lg in logs]
     try:
-        with warnings.catch_warnings():  # trimesh warns about textures/colours we ignore
+        with warnings.catch_warnings():  # trimesh warns (and logs tracebacks) about textures it cannot read
             warnings.simplefilter("ignore")
-            geom = trimesh.load(str(path), file_type=fmt, process=False, maintain_order=True,
-                                skip_materials=True)
+            for lg in logs:
+                lg.disabled = True
+            try:
+                geom = trimesh.load(str(path), file_type=fmt, process=False, maintain_order=True,
+                                    skip_materials=fmt == "stl")
+            finally:
+                for lg, q in zip(logs, quiet):
+                    lg.disabled = q
         parts = geom.dump() if isinstance(geom, trimesh.Scene) else [geom]
         Vs, Fs, off = [], [], 0
         for g in parts:
@@ -148,7 +166,71 @@ def _read_trimesh(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
         raise MeshFileError(f"{path}: cannot read {fmt.upper()} file ({one_line(e)})") from None
     V = np.concatenate(Vs) if Vs else np.zeros((0, 3))
     F = np.concatenate(Fs) if Fs else np.zeros((0, 3), np.int64)
-    return V, F
+    return V, F, _trimesh_appearance(parts, Fs, path, fmt)
+
+
+def _ply_texture_file(path: Path) -> Path | None:
+    """The image a PLY names in its header (``comment TextureFile NAME``, MeshLab's convention),
+    relative to the PLY's folder; None if it names none."""
+    with open(path, "rb") as fh:
+        head = fh.read(65536)
+    end = head.find(b"end_header")
+    for line in head[:max(end, 0)].decode("latin-1").splitlines():
+        w = line.split(None, 2)
+        if len(w) == 3 and w[0] == "comment" and w[1].lower() == "texturefile":
+            return path.parent / w[2].strip()
+    return None
+
+
+def _trimesh_appearance(parts: list, faces: list, path: Path, fmt: str) -> Appearance:
+    """The colour of trimesh geometries: vertex colours when every part has them, a texture when
+    there is one part with texture coordinates and an image (a PLY's ``TextureFile``, read by us:
+    trimesh substitutes a blank image for a missing one; a GLB's embedded base colour texture);
+    anything else -> a note."""
+    app = Appearance()
+    kinds = [getattr(getattr(g, "visual", None), "kind", None) for g in parts]
+    try:
+        if kinds and all(k == "vertex" for k in kinds):
+            cols = [np.asarray(g.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0 for g in parts]
+            app.vertex_colors = np.concatenate(cols).reshape(-1, 3)
+        elif kinds == ["texture"]:
+            uv = np.asarray(parts[0].visual.uv, dtype=np.float64)
+            img, why = None, "texture coordinates but no texture image"
+            if fmt == "ply":
+                name = _ply_texture_file(path)
+                try:
+                    img = read_image(name) if name is not None else None
+                except ValueError as e:
+                    why = str(e)
+            else:
+                img = _material_image(getattr(parts[0].visual, "material", None))
+            if img is None:
+                app.add_note(f"{why}: texture not used")
+            elif uv.shape != (len(parts[0].vertices), 2) or not np.isfinite(uv).all():
+                app.add_note("broken texture coordinates: texture not used")
+            else:
+                app.corner_uv, app.texture = uv[faces[0]], img
+        elif "face" in kinds:
+            app.add_note("per-face colours are not supported (only per-vertex colours or a texture)")
+        elif any(k in ("vertex", "texture") for k in kinds):
+            app.add_note(f"colour on {sum(k in ('vertex', 'texture') for k in kinds)} of {len(kinds)} "
+                         "parts, or several textured parts: colour not used")
+    except Exception as e:  # noqa: BLE001 - colour must never make a readable mesh unreadable
+        app = Appearance(note=f"colour not readable ({one_line(e)})")
+    return app
+
+
+def _material_image(material) -> np.ndarray | None:
+    """(H, W, 3) uint8 of a trimesh material's colour image (SimpleMaterial ``image``, glTF
+    ``baseColorTexture``), None if it has none."""
+    img = getattr(material, "baseColorTexture", None)
+    if img is None and type(material).__name__ != "PBRMaterial":
+        img = getattr(material, "image", None)
+    if img is None:
+        return None
+    arr = np.asarray(img.convert("RGB") if hasattr(img, "convert") else img)
+    return np.ascontiguousarray(arr[:, :, :3] if arr.ndim == 3 else np.repeat(arr[:, :, None], 3, axis=2),
+                                dtype=np.uint8)
 
 
 def _check_ply(path: Path) -> None:
@@ -231,119 +313,6 @@ def _sniff(path: Path, fmt: str) -> None:
             raise MeshFileError(f"{path}: the file is {what}, not {_a(fmt)} mesh")
 
 
-def _read_text(path: Path, fmt: str) -> str:
-    """Text of an OBJ/OFF file: UTF-8 with undecodable bytes replaced (they can only matter in
-    comments and names, which are ignored), a leading BOM dropped; binary data -> MeshFileError."""
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise MeshFileError(f"{path}: cannot read: {e.strerror or e}") from None
-    if b"\x00" in raw:
-        raise MeshFileError(f"{path}: binary data (NUL bytes) in a text {fmt.upper()} file: not "
-                            f"{_a(fmt)} file, or a broken one")
-    text = raw.decode("utf-8", errors="replace")
-    return text[1:] if text.startswith("\ufeff") else text
-
-
-# Largest vertex index accepted before the range check (keeps int64 arithmetic exact).
-_MAX_INDEX = 2**53
-
-
-def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Raw (V, F) of a Wavefront OBJ: ``v`` lines (first three numbers; w / colours ignored) and
-    ``f`` lines (``i``, ``i/t``, ``i//n``, ``i/t/n``; negative = relative to the vertices defined so
-    far, per the spec), polygons fan-triangulated, faces with < 3 vertices kept as degenerate
-    triangles (counted and dropped by :func:`_clean`). ``vt``/``vn``/groups/materials/lines/points
-    are ignored. Broken numbers -> MeshFileError naming the line; index 0 or a relative index before
-    the first vertex -> MeshError."""
-    text = _read_text(path, "obj")
-    if "\\" in text:  # line continuation: a backslash at the end of a line
-        text = re.sub(r"\\[ \t]*(?:\r\n|\r|\n)", " ", text)
-    lines = text.splitlines()
-    fast = _obj_fast(lines)
-    if fast is not None:
-        return fast
-    verts: list = []
-    tris: list = []
-    nv = 0
-    for n, line in enumerate(lines, 1):
-        s = line.lstrip()
-        if not s or s[0] not in "vf":
-            continue
-        parts = s.split("#", 1)[0].split() if "#" in s else s.split()
-        if not parts:
-            continue
-        key = parts[0]
-        if key == "v":
-            if len(parts) < 4:
-                raise MeshFileError(f"{path}: broken OBJ at line {n}: a vertex needs x y z, "
-                                    f"found {len(parts) - 1} numbers")
-            try:
-                verts.append((float(parts[1]), float(parts[2]), float(parts[3])))
-            except ValueError:
-                raise MeshFileError(f"{path}: broken OBJ at line {n}: not numbers: "
-                                    f"{' '.join(parts[1:4])[:60]!r}") from None
-            nv += 1
-        elif key == "f":
-            poly = []
-            for t in parts[1:]:
-                a = t.split("/", 1)[0]
-                try:
-                    i = int(a)
-                except ValueError:
-                    i = None
-                if i is None or "_" in a:
-                    raise MeshFileError(f"{path}: broken OBJ at line {n}: face vertex {t[:30]!r} is "
-                                        f"not an integer index")
-                if i > 0:
-                    if i > _MAX_INDEX:
-                        raise MeshError(f"{path}: line {n}: face vertex index {i} is out of range "
-                                        f"(the file has at most {_MAX_INDEX} vertices)")
-                    poly.append(i - 1)
-                elif i < 0:
-                    if -i > nv:
-                        raise MeshError(f"{path}: line {n}: relative face index {i} is out of range "
-                                        f"(only {nv} vertices defined before it)")
-                    poly.append(nv + i)
-                else:
-                    raise MeshError(f"{path}: line {n}: face vertex index 0 is out of range "
-                                    f"(OBJ indices start at 1)")
-            k = len(poly)
-            if k >= 3:
-                p0 = poly[0]
-                tris.extend((p0, poly[j], poly[j + 1]) for j in range(1, k - 1))
-            elif k:  # a short face: a degenerate triangle, counted and dropped
-                tris.append((poly[0], poly[-1], poly[-1]))
-    V = np.array(verts, np.float64).reshape(-1, 3)
-    F = np.array(tris, np.int64).reshape(-1, 3)
-    return V, F
-
-
-def _obj_fast(lines: list) -> tuple[np.ndarray, np.ndarray] | None:
-    """(V, F) of the common plain OBJ (``v x y z`` and ``f i j k`` with positive indices only) in
-    a few numpy calls; None if the file has anything else in its v/f lines (the general loop then
-    reads it and reports errors by line)."""
-    vl = [ln for ln in lines if ln[:2] == "v "]
-    fl = [ln for ln in lines if ln[:2] == "f "]
-    n_vf = sum(1 for ln in lines if ln.lstrip()[:1] in ("v", "f") and ln.lstrip()[:2] not in ("vt", "vn", "vp"))
-    if n_vf != len(vl) + len(fl):
-        return None
-    vtxt, ftxt = " ".join(vl), " ".join(fl)
-    if "#" in vtxt or any(c in ftxt for c in "#/-_+"):
-        return None
-    vt, ft = vtxt.split(), ftxt.split()
-    if len(vt) != 4 * len(vl) or len(ft) != 4 * len(fl):
-        return None
-    try:
-        V = np.array(vt, dtype=object).reshape(-1, 4)[:, 1:].astype(np.float64)
-        F = np.array(ft, dtype=object).reshape(-1, 4)[:, 1:].astype(np.int64) - 1
-    except (ValueError, OverflowError):
-        return None
-    if F.size and (F.min() < 0 or F.max() >= _MAX_INDEX):
-        return None
-    return V.reshape(-1, 3), F.reshape(-1, 3)
-
-
 _OFF_HEADERS = {"OFF", "COFF", "NOFF", "CNOFF", "STOFF", "STCOFF", "STNOFF", "STCNOFF"}
 
 
@@ -352,7 +321,7 @@ def _read_off(path: Path) -> tuple[np.ndarray, np.ndarray]:
     vertex and one face per line, ``#`` comments and blank lines skipped). Extra values on a line
     (normals, colours) are ignored; polygons are fan-triangulated. Missing counts, a truncated file,
     non-integer face indices -> MeshFileError; indices out of range -> MeshError."""
-    text = _read_text(path, "off")
+    text = read_text(path, "off")
     lines = [(n, ln.split("#", 1)[0].split()) for n, ln in enumerate(text.splitlines(), 1)]
     lines = [x for x in lines if x[1]]
     if not lines or not lines[0][1][0].upper().endswith("OFF"):
@@ -428,22 +397,24 @@ def _equal_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order[new], group
 
 
-def _merge_duplicates(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Merge exactly equal vertices, keeping first occurrences in their original order."""
+def _merge_duplicates(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge exactly equal vertices, keeping first occurrences in their original order: (V', F',
+    kept) with ``kept`` the original ids of the vertices of V'."""
     first, inverse = _equal_rows(V)
-    n_dup = len(V) - len(first)
-    if n_dup == 0:
-        return V, F, 0
+    if len(first) == len(V):
+        return V, F, np.arange(len(V))
     keep = np.sort(first)  # kept vertices in file order
     new_of_unique = np.empty(len(first), np.int64)
     new_of_unique[np.argsort(first)] = np.arange(len(first))  # unique group -> new id
     remap = new_of_unique[inverse]
-    return V[keep], remap[F], n_dup
+    return V[keep], remap[F], keep
 
 
-def _clean(V, F, name: str, merge_duplicates: bool) -> tuple[np.ndarray, np.ndarray, dict]:
+def _clean(V, F, name: str, merge_duplicates: bool):
     """Validate raw (V (N, 3), F (M, 3)) in file units and clean them (steps 1-3 of the module
-    docstring): returns (V (N', 3) float64, F (M', 3) int64, meta counts). ``name`` is for messages.
+    docstring): returns (V (N', 3) float64, F (M', 3) int64, meta counts, vertex_ids (N',),
+    face_ids (M',)), the last two the raw ids of the rows kept (to renumber the colour). ``name``
+    is for messages.
     """
     V = np.asarray(V, dtype=np.float64).reshape(-1, 3)
     F = np.asarray(F, dtype=np.int64).reshape(-1, 3)
@@ -467,10 +438,10 @@ def _clean(V, F, name: str, merge_duplicates: bool) -> tuple[np.ndarray, np.ndar
         raise MeshError(f"{name}: {len(V):,} vertices, more than facecorr takes ({MAX_VERTICES:,}; memory grows "
                         f"~0.65 GB per million vertices): decimate the scan first")
     meta = {"n_vertices_in_file": int(len(V)), "n_faces_in_file": int(len(F))}
-    n_dup = 0
+    vertex_ids = np.arange(len(V))
     if merge_duplicates:
-        V, F, n_dup = _merge_duplicates(V, F)
-    meta["n_duplicate_vertices_merged"] = int(n_dup)
+        V, F, vertex_ids = _merge_duplicates(V, F)
+    meta["n_duplicate_vertices_merged"] = int(meta["n_vertices_in_file"] - len(V))
     a, b, c = (V[F[:, k]] for k in range(3))
     with np.errstate(all="ignore"):  # |V| <= 1e15: no overflow, but tiny areas may underflow
         area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
@@ -478,14 +449,38 @@ def _clean(V, F, name: str, merge_duplicates: bool) -> tuple[np.ndarray, np.ndar
     repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])
     degenerate = repeated | (area2 <= 2e-12 * diag * diag)
     meta["n_degenerate_faces_dropped"] = int(degenerate.sum())
-    F = F[~degenerate]
+    face_ids = np.flatnonzero(~degenerate)
+    F = F[face_ids]
     if len(F) == 0:
         raise MeshError(f"{name}: all {len(degenerate)} faces are degenerate (zero area)")
     # the same triangle twice (any rotation or orientation): keep the first
     first, _ = _equal_rows(np.sort(F, axis=1))
     meta["n_duplicate_faces_dropped"] = int(len(F) - len(first))
-    F = F[np.sort(first)]
-    return V, F, meta
+    first = np.sort(first)
+    return V, F[first], meta, vertex_ids, face_ids[first]
+
+
+def _colour_fields(app: Appearance, n_raw: int, m_raw: int, vertex_ids, face_ids, meta: dict) -> dict:
+    """Mesh keyword arguments for the colour of ``app`` (raw-indexed) renumbered to the cleaned
+    mesh; ``meta["colour"]`` / ``meta["colour_note"]`` record what was kept and why not."""
+    out = {}
+    if app.vertex_colors is not None:
+        c = np.asarray(app.vertex_colors, dtype=np.float64)
+        if c.shape == (n_raw, 3) and np.isfinite(c).all() and c.min() >= 0.0 and c.max() <= 1.0:
+            out["vertex_colors"] = c[vertex_ids]
+        else:
+            app.add_note("broken vertex colours: not used")
+    if app.corner_uv is not None:
+        uv = np.asarray(app.corner_uv, dtype=np.float64)
+        img = app.texture
+        if uv.shape == (m_raw, 3, 2) and np.isfinite(uv).all() and img is not None and img.ndim == 3:
+            out["face_uv"], out["texture"] = uv[face_ids], img
+        else:
+            app.add_note("broken texture coordinates: texture not used")
+    meta["colour"] = "texture" if "face_uv" in out else ("vertex" if out else None)
+    if app.note:
+        meta["colour_note"] = app.note
+    return out
 
 
 def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Mesh:
@@ -509,7 +504,9 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
         ``meta`` holds ``format``, ``n_vertices_in_file``, ``n_faces_in_file``,
         ``n_duplicate_vertices_merged``, ``n_degenerate_faces_dropped``,
         ``n_duplicate_faces_dropped``, ``n_components``,
-        ``units_inferred``.
+        ``units_inferred``, ``colour`` ("vertex", "texture" or None) and, when colour in the file
+        was not used, ``colour_note``. A coloured scan has ``vertex_colors`` or ``face_uv`` +
+        ``texture`` (module docstring).
 
     Raises
     ------
@@ -528,14 +525,17 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
     if fmt != "stl":  # a binary STL header is free text; its size check catches other files
         _sniff(path, fmt)
     if fmt == "wrl":
-        V, F = read_wrl(path)
+        V, F, app = read_wrl_with_appearance(path)
     elif fmt == "obj":
-        V, F = _read_obj(path)
+        V, F, app = read_obj(path)
     elif fmt == "off":
         V, F = _read_off(path)
+        app = Appearance()
     else:
-        V, F = _read_trimesh(path, fmt)
-    V, F, meta = _clean(V, F, str(path), merge_duplicates)
+        V, F, app = _read_trimesh(path, fmt)
+    n_raw, m_raw = len(V), len(F)
+    V, F, meta, vertex_ids, face_ids = _clean(V, F, str(path), merge_duplicates)
+    colour = _colour_fields(app, n_raw, m_raw, vertex_ids, face_ids, meta)
     # Components in the file's units (labels do not depend on the scale).
     labels = Mesh(V, F, source=str(path)).components
     meta["n_components"] = int(len(np.unique(labels[F[:, 0]])))
@@ -547,7 +547,7 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
             raise UnitsError(f"{path}: {e}") from None
         factor = UNIT_TO_MM[units]
     meta.update(format=fmt, units_inferred=inferred)
-    mesh = Mesh(V * factor, F, to_mm=factor, units=units, source=str(path), meta=meta)
+    mesh = Mesh(V * factor, F, to_mm=factor, units=units, source=str(path), meta=meta, **colour)
     mesh.__dict__["components"] = labels  # seed the cached property
     return mesh
 

@@ -1,14 +1,22 @@
-"""VRML 2.0 (``.wrl``/``.vrml``, e.g. BU-3DFE) meshes: the parser :func:`read_wrl` and the text
-writer :func:`write_wrl_text` used by :func:`facecorr.io.save_mesh`.
+"""VRML 2.0 (``.wrl``/``.vrml``, e.g. BU-3DFE) meshes: the parser :func:`read_wrl` (the writer is
+in :mod:`facecorr.io.write`).
 
 Every ``IndexedFaceSet`` reached through ``children`` / ``level`` / ``Shape.geometry`` is read
 (``coord Coordinate { point [...] }`` or ``USE``, ``coordIndex [... -1 ...]`` polygons,
 fan-triangulated; ``ccw FALSE`` flips them); several shapes are merged; ``Transform`` nodes are
-applied; texture, normal and colour nodes, PROTOs and ROUTEs are ignored. A gzip-compressed file
+applied; normal nodes, PROTOs and ROUTEs are ignored. A gzip-compressed file
 (allowed by the VRML spec) is decompressed. Long plain number lists
 (> 1000 characters) are converted in one numpy call. Coordinates are returned as in the file (no
 unit conversion; :func:`facecorr.io.load_mesh` does that). Syntax errors are one-line
 :class:`~facecorr.errors.MeshFileError` naming the line.
+
+Colour (:func:`read_wrl_with_appearance`): per-vertex ``color Color { color [...] }``
+(``colorPerVertex TRUE``, the default; with ``colorIndex`` or indexed like the points), or a
+texture: ``texCoord TextureCoordinate { point [...] }`` (with ``texCoordIndex`` or indexed like
+``coordIndex``) and the Shape's ``appearance Appearance { texture ImageTexture { url "..." } }``
+(the first url that names a readable image, relative to the file's folder), as BU-3DFE writes
+it. Several shapes: kept when all have vertex colours, or all share one texture image; per-face
+colours, ``PixelTexture`` and anything unusable give no colour and a note (the file still loads).
 """
 
 from __future__ import annotations
@@ -21,8 +29,9 @@ import numpy as np
 
 from ..errors import MeshFileError
 from ..geometry import transforms
+from .appearance import Appearance, read_image
 
-__all__ = ["read_wrl", "write_wrl_text"]
+__all__ = ["read_wrl", "read_wrl_with_appearance"]
 
 _TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|#[^\n]*|[{}\[\]]|[^\s{}\[\],"#]+|,')
 _MAX_DEPTH = 100  # node nesting (real files: < 10)
@@ -351,8 +360,9 @@ def _trs(vec, h) -> np.ndarray:
 
 
 def _collect_face_sets(nodes, p: _WrlParser, M: np.ndarray, out: list, depth: int = 0,
-                       visits: list | None = None) -> None:
-    """Append (IndexedFaceSet node, 4x4 world matrix M) of every face set under ``nodes`` to ``out``.
+                       visits: list | None = None, shape: _Node | None = None) -> None:
+    """Append (IndexedFaceSet node, 4x4 world matrix M, its Shape node or None) of every face set
+    under ``nodes`` to ``out``.
 
     At most ``_MAX_VISITS`` node instances and ``_MAX_FACE_SETS`` face sets (USE of USE of ... can
     expand exponentially: a 40-line file would take forever)."""
@@ -368,14 +378,14 @@ def _collect_face_sets(nodes, p: _WrlParser, M: np.ndarray, out: list, depth: in
             raise MeshFileError(f"{p.name}: more than {_MAX_VISITS} nodes or {_MAX_FACE_SETS} "
                                 f"IndexedFaceSets once DEF/USE are expanded (USE of USE ...?)")
         if node.type == "IndexedFaceSet":
-            out.append((node, M))
+            out.append((node, M, shape))
             continue
         with np.errstate(all="ignore"):
             here = M @ _transform_matrix(node, p) if node.type == "Transform" else M
         if node.type == "Shape":
             g = node.fields.get("geometry")
             if isinstance(g, _Node):
-                _collect_face_sets([g], p, here, out, depth + 1, visits)
+                _collect_face_sets([g], p, here, out, depth + 1, visits, node)
         for key in ("children", "level"):  # Group/Transform/Anchor/Collision/Billboard, LOD
             kids = node.fields.get(key)
             if isinstance(kids, _Node):
@@ -423,6 +433,13 @@ def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
     range-checked here (:func:`load_mesh` does). Raises MeshFileError for broken syntax or
     another VRML version.
     """
+    V, F, _ = read_wrl_with_appearance(path)
+    return V, F
+
+
+def read_wrl_with_appearance(path) -> tuple[np.ndarray, np.ndarray, Appearance]:
+    """Raw (V, F, appearance) of a VRML 2.0 file: :func:`read_wrl` and the file's colour
+    (module docstring), indexed like V and F."""
     path = Path(path)
     try:
         raw = path.read_bytes()
@@ -442,8 +459,8 @@ def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
     nodes = p.parse_file()
     sets: list = []
     _collect_face_sets(nodes, p, np.eye(4), sets)
-    Vs, Fs, off = [], [], 0
-    for node, M in sets:
+    Vs, Fs, looks, off = [], [], [], 0
+    for node, M, shape in sets:
         coord = node.fields.get("coord")
         if not isinstance(coord, _Node):
             continue
@@ -457,22 +474,26 @@ def read_wrl(path) -> tuple[np.ndarray, np.ndarray]:
                 V = V @ M[:3, :3].T + M[:3, 3]
         ci = node.fields.get("coordIndex")
         idx = ci.ints("coordIndex") if isinstance(ci, (_ScalarList, _RawList)) else np.zeros(0, np.int64)
-        F = _fan_triangulate(idx)
+        corners = _fan_corners(idx)
+        F = idx[corners] if len(corners) else np.zeros((0, 3), np.int64)
         ccw = node.fields.get("ccw")
-        if isinstance(ccw, _ScalarList) and ccw.toks == ["FALSE"]:
+        flip = isinstance(ccw, _ScalarList) and ccw.toks == ["FALSE"]
+        if flip:
             F = F[:, ::-1]
+        looks.append(_face_set_look(node, shape, idx, corners[:, ::-1] if flip else corners, len(V), path))
         Vs.append(V)
         Fs.append(F + off)
         off += len(V)
         if off > _MAX_VERTICES:
             raise MeshFileError(f"{path}: more than {_MAX_VERTICES} vertices once DEF/USE are expanded")
     if not Vs:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
-    return np.concatenate(Vs), np.concatenate(Fs)
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), Appearance()
+    return np.concatenate(Vs), np.concatenate(Fs), _merge_looks(looks, path)
 
 
-def _fan_triangulate(idx: np.ndarray) -> np.ndarray:
-    """coordIndex with -1 separators -> (T, 3) triangles (fans); short polygons -> degenerate."""
+def _fan_corners(idx: np.ndarray) -> np.ndarray:
+    """coordIndex with -1 separators -> (T, 3) positions in ``idx`` of each triangle's corners
+    (fans; a polygon with < 3 vertices -> a degenerate triangle, counted and dropped later)."""
     idx = np.asarray(idx, np.int64)
     if len(idx) == 0:
         return np.zeros((0, 3), np.int64)
@@ -483,26 +504,107 @@ def _fan_triangulate(idx: np.ndarray) -> np.ndarray:
     lengths = ends - starts
     # Fast path: all triangles.
     if np.all(lengths == 3):
-        return idx[np.stack([starts, starts + 1, starts + 2], axis=1)]
+        return np.stack([starts, starts + 1, starts + 2], axis=1)
     tris = []
-    for s, n in zip(starts, lengths):
+    for s, n in zip(starts.tolist(), lengths.tolist()):
         if n == 0:
             continue
         if n < 3:  # keep as a degenerate triangle so that it is counted and dropped
-            poly = idx[s:s + n]
-            tris.append([poly[0], poly[-1], poly[-1]])
+            tris.append([s, s + n - 1, s + n - 1])
             continue
         for k in range(1, n - 1):
-            tris.append([idx[s], idx[s + k], idx[s + k + 1]])
+            tris.append([s, s + k, s + k + 1])
     return np.array(tris, np.int64).reshape(-1, 3)
 
 
-def write_wrl_text(V: np.ndarray, F: np.ndarray) -> str:
-    """VRML 2.0 text of one Shape with an IndexedFaceSet (coordinates written exactly, %.17g)."""
-    V = np.asarray(V, np.float64)
-    F = np.asarray(F, np.int64)
-    pts = ",\n".join(f"{x:.17g} {y:.17g} {z:.17g}" for x, y, z in V.tolist())
-    idx = ",\n".join(f"{a}, {b}, {c}, -1" for a, b, c in F.tolist())
-    return ("#VRML V2.0 utf8\n# written by facecorr\n"
-            "Shape {\n geometry IndexedFaceSet {\n  coord Coordinate {\n   point [\n"
-            f"{pts}\n   ]\n  }}\n  coordIndex [\n{idx}\n  ]\n }}\n}}\n")
+def _numbers(node, field: str, kind: str = "floats"):
+    """A node's number list field as an array, None if absent (or not a number list)."""
+    v = node.fields.get(field) if isinstance(node, _Node) else None
+    if not isinstance(v, (_ScalarList, _RawList)):
+        return None
+    return v.floats(field) if kind == "floats" else v.ints(field)
+
+
+def _corner_index(node, field: str, idx: np.ndarray, corners: np.ndarray, n_items: int):
+    """(T, 3) item ids of the triangle corners, from the index field ``field`` (laid out like
+    coordIndex) or, when absent or empty, from coordIndex itself; None if out of range."""
+    own = _numbers(node, field, "ints")
+    ids = own if own is not None and len(own) else idx
+    if len(corners) and corners.max() >= len(ids):
+        return None
+    out = ids[corners] if len(corners) else np.zeros((0, 3), np.int64)
+    if len(out) and (out.min() < 0 or out.max() >= n_items):
+        return None
+    return out
+
+
+def _face_set_look(node, shape, idx, corners, n_points: int, path: Path) -> dict:
+    """One IndexedFaceSet's colour: {"colors": (n_points, 3) | None, "uv": (T, 3, 2) | None,
+    "image": path | None, "note": str | None}."""
+    look = {"colors": None, "uv": None, "image": None, "note": None}
+    vids = idx[corners] if len(corners) else np.zeros((0, 3), np.int64)
+    if vids.size and (vids.min() < 0 or vids.max() >= n_points):
+        return look  # load_mesh reports the out-of-range face
+    color = node.fields.get("color")
+    if isinstance(color, _Node):
+        c = _numbers(color, "color")
+        per_vertex = node.fields.get("colorPerVertex")
+        if isinstance(per_vertex, _ScalarList) and per_vertex.toks == ["FALSE"]:
+            look["note"] = "per-face colours (colorPerVertex FALSE) are not supported"
+        elif c is None or len(c) % 3:
+            look["note"] = "broken Color node"
+        else:
+            c = c.reshape(-1, 3)
+            ids = _corner_index(node, "colorIndex", idx, corners, len(c))
+            if ids is None:
+                look["note"] = "colour indices out of range"
+            else:
+                # a vertex takes the colour of its corners (one per vertex in practice); vertices
+                # in no triangle are never sampled and get mid-grey
+                vc = np.full((n_points, 3), 0.5)
+                vc[vids.ravel()] = c[ids.ravel()]
+                look["colors"] = vc
+    tex = node.fields.get("texCoord")
+    if isinstance(tex, _Node):
+        pts = _numbers(tex, "point")
+        app = shape.fields.get("appearance") if isinstance(shape, _Node) else None
+        img = app.fields.get("texture") if isinstance(app, _Node) else None
+        if pts is None or len(pts) % 2:
+            look["note"] = "broken TextureCoordinate node"
+        elif not isinstance(img, _Node) or img.type != "ImageTexture":
+            look["note"] = "texture coordinates without an ImageTexture"
+        else:
+            uv = pts.reshape(-1, 2)
+            ids = _corner_index(node, "texCoordIndex", idx, corners, len(uv))
+            urls = img.fields.get("url")
+            names = [t.strip('"') for t in urls.toks] if isinstance(urls, _ScalarList) else []
+            found = [path.parent / n for n in names if n and (path.parent / n).is_file()]
+            if ids is None:
+                look["note"] = "texture coordinate indices out of range"
+            elif not found:
+                look["note"] = f"texture image {names[0] if names else '(no url)'!r} not found beside the scan"
+            else:
+                look["uv"], look["image"] = uv[ids], found[0]
+    return look
+
+
+def _merge_looks(looks: list, path: Path) -> Appearance:
+    """The file's colour from its face sets' (see the module docstring)."""
+    app = Appearance()
+    for lk in looks:
+        if lk["note"]:
+            app.add_note(lk["note"])
+    if all(lk["colors"] is not None for lk in looks):
+        app.vertex_colors = np.concatenate([lk["colors"] for lk in looks])
+    elif any(lk["colors"] is not None for lk in looks):
+        app.add_note("colours on some shapes only: not used")
+    images = {lk["image"] for lk in looks}
+    if len(images) == 1 and None not in images:
+        try:
+            app.texture = read_image(images.pop())
+            app.corner_uv = np.concatenate([lk["uv"] for lk in looks])
+        except ValueError as e:
+            app.add_note(f"{e}: texture not used")
+    elif any(lk["image"] is not None for lk in looks):
+        app.add_note("several texture images, or texture on some shapes only: texture not used")
+    return app

@@ -46,6 +46,13 @@ class Result:
     timings_s : dict stage -> seconds.
     flags : list of str, warnings (low-confidence landmarks, ...).
     to_mm, units : the scan's units (results are written back in them).
+    uncovered : (N,) bool, the registered vertices with no scan under them (nearest scan vertex
+        farther than ``CorrespondOptions.coverage_distance``; ``coverage`` = 1 - its mean).
+    colors : (N, 3) float32 RGB in [0, 1], or None when the scan has no colour: the scan's colour
+        at each registered vertex's closest scan point (barycentric in per-vertex colours,
+        bilinear in a texture; :mod:`facecorr.geometry.colour`). NaN rows where ``uncovered``: no
+        colour is invented where the template has no scan under it.
+    color_source : "vertex", "texture" or None, where ``colors`` came from.
     """
 
     vertices: np.ndarray
@@ -64,6 +71,35 @@ class Result:
     units: str = "mm"
     fit_rms: float | None = None
     surface_distance: np.ndarray | None = None
+    uncovered: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    color_source: str | None = None
+
+    #: The PLY colour of a vertex without colour (``uncovered``): mid-grey, alpha 0.
+    UNCOVERED_RGBA = (128, 128, 128, 0)
+
+    def colour_json(self) -> dict | None:
+        """The ``"colour"`` entry of the JSON: None when the scan has no colour, else ``{"source":
+        "vertex" | "texture", "n_uncovered": k, "uncovered": [vertex ids], "uncovered_marked": how
+        the mesh file shows them}``."""
+        if self.colors is None:
+            return None
+        ids = np.flatnonzero(~np.isfinite(np.asarray(self.colors)).all(axis=1))
+        return {"source": self.color_source, "n_uncovered": int(len(ids)), "uncovered": ids.tolist(),
+                "uncovered_marked": "rgb 128 128 128 with alpha 0 in a PLY (grey without alpha in OBJ / VRML / GLB)"}
+
+    def colour_bytes(self) -> np.ndarray | None:
+        """(N, 4) uint8 RGBA written into the mesh file: the colours, alpha 255; uncovered
+        vertices :attr:`UNCOVERED_RGBA`. None without colour."""
+        if self.colors is None:
+            return None
+        c = np.asarray(self.colors, dtype=np.float64)
+        ok = np.isfinite(c).all(axis=1)
+        out = np.empty((len(c), 4), dtype=np.uint8)
+        out[:] = self.UNCOVERED_RGBA
+        out[ok, :3] = np.round(np.clip(c[ok], 0.0, 1.0) * 255.0).astype(np.uint8)
+        out[ok, 3] = 255
+        return out
 
     def to_json(self) -> dict:
         """The JSON contract of ``facecorr register --json`` (coordinates, distances and MHD in the
@@ -83,6 +119,7 @@ class Result:
             "surface_distance": None if self.surface_distance is None else encode_distances(self.surface_distance, self.to_mm),
             "timings_s": {k: round(float(v), 4) for k, v in self.timings_s.items()},
             "flags": list(self.flags),
+            "colour": self.colour_json(),
             **({} if self.point_set is None else
                {"point_set": {k: (np.asarray(v) * s).tolist() for k, v in self.point_set.items()}}),
         }
@@ -110,7 +147,7 @@ class Result:
         check_output_paths(outputs, inputs=inputs)
         format_of(mesh_path)  # an unknown mesh format, named by the user's path
         with atomic_paths(*(p for _, p in outputs)) as tmps:
-            save_mesh(tmps[0], (self.vertices / self.to_mm, self.faces))
+            save_mesh(tmps[0], (self.vertices / self.to_mm, self.faces), colors=self.colour_bytes())
             k = 1
             if json_path is not None:
                 tmps[1].write_text(json.dumps(self.to_json(), indent=2) + "\n")
@@ -250,7 +287,8 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
     n_large = int(np.sum(areas >= opts.large_piece_fraction * areas[0]))
     if n_large > 1:
         flags.append(f"several_pieces:{n_large} large pieces (the registration used the one under the landmarks)")
-    coverage = float(np.mean(reg.scan_distance <= opts.coverage_distance))
+    uncovered = reg.scan_distance > opts.coverage_distance
+    coverage = float(np.mean(~uncovered))
     from ..geometry.spatial import surface_distance
 
     _, nearest = work.kdtree.query(reg.vertices)
@@ -258,6 +296,13 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
     if coverage < opts.min_coverage:
         flags.append(f"low_coverage:{100 * coverage:.0f}% of the template has scan under it")
     timings.update({f"registration.{k}": v for k, v in reg.timings_s.items()})
+    colors = None
+    if work.color_source is not None:
+        t1 = time.perf_counter()
+        colors = transfer_colours(work, reg.vertices, uncovered)
+        timings["colour"] = time.perf_counter() - t1
+    if mesh.meta.get("colour_note"):
+        flags.append(f"colour_not_used:{mesh.meta['colour_note']}")
     timings["total"] = time.perf_counter() - t0
     return Result(
         vertices=reg.vertices + offset,
@@ -275,7 +320,22 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         units=mesh.units,
         fit_rms=reg.details.get("fit_rms_mm"),
         surface_distance=surface,
+        uncovered=uncovered,
+        colors=colors,
+        color_source=work.color_source,
     )
+
+
+def transfer_colours(scan: Mesh, vertices: np.ndarray, uncovered: np.ndarray) -> np.ndarray:
+    """(N, 3) float32 colours of ``scan`` at the closest scan point of each of ``vertices`` (mm, the
+    scan's frame), NaN rows where ``uncovered`` (N,) bool is set."""
+    from ..geometry.colour import colours_at
+
+    out = np.full((len(vertices), 3), np.nan, dtype=np.float32)
+    keep = ~np.asarray(uncovered, dtype=bool)
+    if keep.any():
+        out[keep] = colours_at(scan, np.asarray(vertices)[keep])[0]
+    return out
 
 
 def _given_landmarks(landmarks, work: Mesh, offset, max_distance: float) -> dict:

@@ -10,7 +10,11 @@ Layout (like BU-3DFE)::
 
 Ground-truth JSON: ``{"scan": FILE, "subject": "F0001", "expression": "HA", "level": 4,
 "split": "train"|"test", "units": "mm", "landmarks": {name: [x, y, z]}, "ibug68": [[x, y, z] or
-null, ... 68], "dense": FILE.npz}`` (file names relative to the JSON's folder).
+null, ... 68], "dense": FILE.npz}`` (file names relative to the JSON's folder), plus ``"colour":
+{"source": "vertex"|"texture", "function": "facecorr.synth.colour.skin_colour"}`` for a coloured
+database (``colour=``, :mod:`facecorr.synth.colour`): ``vertex`` writes PLY scans with per-vertex
+RGB, ``texture`` OBJ scans with an MTL and a PNG texture (``F0001_HA04_F3D.obj/.mtl/.png``).
+Colour draws no random numbers: the geometry is the same with or without it.
 
 Subjects are named F0001, M0001, F0002, M0002, ... (alternating; the letter is only a label:
 identities are sampled from the ICT identity space, which has no gender variable). The split is
@@ -36,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FacecorrError
+from ..geometry.mesh import Mesh
 from ..io import save_mesh
 from ..names import LANDMARK_NAMES
 from .expressions import EXPRESSION_CODES, expression_weights
@@ -106,14 +111,33 @@ def make_scan(seed: int, subject: str, expression: str, level: int, config: Scan
     return scan, alpha
 
 
+def _scan_suffix(colour) -> str:
+    return ".obj" if colour == "texture" else ".ply"
+
+
+def _save_scan(path: Path, scan, colour) -> None:
+    """The scan's mesh file: binary PLY (float64 mm), with per-vertex colours for ``vertex``; an
+    OBJ + MTL + PNG for ``texture``."""
+    from .colour import material_positions, scan_texture_coordinates, skin_colour, texture_atlas
+
+    if colour is None:
+        save_mesh(path, (scan.vertices, scan.faces))
+    elif colour == "vertex":
+        rgb = skin_colour(material_positions(scan.tri, scan.bary))
+        save_mesh(path, (scan.vertices, scan.faces), colors=np.round(rgb * 255.0).astype(np.uint8))
+    else:
+        uv = scan_texture_coordinates(scan.tri, scan.bary)
+        save_mesh(path, Mesh(scan.vertices, scan.faces, face_uv=uv[scan.faces], texture=texture_atlas()[0]))
+
+
 def _job(args):
-    out_dir, seed, subject, expression, level, cfg = args
+    out_dir, seed, subject, expression, level, cfg, colour = args
     t0 = time.perf_counter()
     scan, alpha = make_scan(seed, subject, expression, level, cfg)
     stem = scan_stem(subject, expression, level)
     d = Path(out_dir) / subject
     d.mkdir(parents=True, exist_ok=True)
-    save_mesh(d / f"{stem}.ply", (scan.vertices, scan.faces))  # binary PLY, float64 mm
+    _save_scan(d / f"{stem}{_scan_suffix(colour)}", scan, colour)
     with open(d / f"{stem}_dense.npz", "wb") as fh:
         np.savez(
             fh, tri=scan.tri.astype(np.int32), bary=scan.bary.astype(np.float32),
@@ -123,7 +147,7 @@ def _job(args):
         )
     r = lambda p: [round(float(x), 4) for x in p]  # noqa: E731  (0.1 um is plenty)
     gt = {
-        "scan": f"{stem}.ply",
+        "scan": f"{stem}{_scan_suffix(colour)}",
         "subject": subject,
         "expression": expression,
         "level": level,
@@ -133,6 +157,8 @@ def _job(args):
         "ibug68": [None if np.isnan(p).any() else r(p) for p in scan.ibug68],
         "dense": f"{stem}_dense.npz",
     }
+    if colour is not None:
+        gt["colour"] = {"source": colour, "function": "facecorr.synth.colour.skin_colour"}
     with open(d / f"{stem}.json", "w") as fh:
         json.dump(gt, fh, indent=1)
         fh.write("\n")
@@ -177,7 +203,8 @@ def scan_list(preset="tiny", subjects=None, expressions=None, levels=None, subse
 
 
 def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=None, expressions=None,
-             levels=None, subset=None, progress=True, config: ScannerConfig | None = None, **scanner_options):
+             levels=None, subset=None, progress=True, config: ScannerConfig | None = None, colour=None,
+             **scanner_options):
     """Generate the database into ``out_dir`` and return the index records.
 
     Parameters
@@ -192,6 +219,8 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
     levels : iterable of levels 1..4 for the non-neutral expressions, default all.
     subset : "eval" = NE + level 4 only (the paper's 700-scan evaluation subset on bu3dfe).
     config : a ScannerConfig; ``scanner_options`` override its fields (e.g. yaw=90, spacing=1.2).
+    colour : None (no colour), "vertex" (PLY with per-vertex RGB) or "texture" (OBJ + MTL + PNG);
+        see :mod:`facecorr.synth.colour`.
 
     Returns
     -------
@@ -199,11 +228,12 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
     """
     if int(workers) < 1:
         raise SynthError("workers must be at least 1")
+    _check_colour(colour)
     cfg = _scanner_config(crop, config, scanner_options)
     jobs = scan_list(preset, subjects, expressions, levels, subset)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    args = [(str(out), int(seed), s, e, lv, cfg) for s, e, lv in jobs]
+    args = [(str(out), int(seed), s, e, lv, cfg, colour) for s, e, lv in jobs]
     from tqdm import tqdm
 
     bar = tqdm(total=len(args), desc="synth", unit="scan", disable=not progress)
@@ -224,13 +254,22 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
     records = []
     for (s, e, lv), _ in zip(jobs, results):
         stem = scan_stem(s, e, lv)
-        records.append({"scan": f"{s}/{stem}.ply", "gt": f"{s}/{stem}.json", "subject": s, "expression": e,
+        records.append({"scan": f"{s}/{stem}{_scan_suffix(colour)}", "gt": f"{s}/{stem}.json", "subject": s, "expression": e,
                         "level": lv, "split": subject_split(s)})
     index = {"preset": preset, "seed": int(seed), "crop": crop, "scans": records}
+    if colour is not None:
+        index["colour"] = colour
     with open(out / "index.json", "w") as fh:
         json.dump(index, fh, indent=1)
         fh.write("\n")
     return records
+
+
+def _check_colour(colour) -> None:
+    from .colour import COLOUR_SOURCES
+
+    if colour is not None and colour not in COLOUR_SOURCES:
+        raise SynthError(f"unknown colour {colour!r}; expected None, {', '.join(map(repr, COLOUR_SOURCES))}")
 
 
 def _scanner_config(crop, config, scanner_options) -> ScannerConfig:
@@ -246,7 +285,7 @@ def _scanner_config(crop, config, scanner_options) -> ScannerConfig:
 
 
 def generate_scan(out_dir, subject=1, expression="HA", level=4, seed=0, crop="face",
-                  config: ScannerConfig | None = None, **scanner_options) -> dict:
+                  config: ScannerConfig | None = None, colour=None, **scanner_options) -> dict:
     """Simulate one scan and write it like a database entry (for demos and quick checks).
 
     Writes ``out_dir/F0001/F0001_HA04_F3D.ply`` + ``.json`` + ``_dense.npz`` (no ``index.json``);
@@ -260,7 +299,7 @@ def generate_scan(out_dir, subject=1, expression="HA", level=4, seed=0, crop="fa
     expression : "NE", "AN", "DI", "FE", "HA", "SA" or "SU".
     level : 1..4 (ignored and set to 0 for "NE").
     seed : int, the database seed.
-    crop : "face" or "none"; ``config`` / ``scanner_options`` as in :func:`generate`.
+    crop : "face" or "none"; ``config`` / ``scanner_options`` / ``colour`` as in :func:`generate`.
 
     Returns
     -------
@@ -281,12 +320,13 @@ def generate_scan(out_dir, subject=1, expression="HA", level=4, seed=0, crop="fa
     elif isinstance(level, bool) or not isinstance(level, (int, np.integer)) or not 1 <= level <= 4:
         raise SynthError(f"bad level {level!r}: levels are 1..4")
     cfg = _scanner_config(crop, config, scanner_options)
+    _check_colour(colour)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    _job((str(out), int(seed), name, expression, int(level), cfg))
+    _job((str(out), int(seed), name, expression, int(level), cfg, colour))
     stem = scan_stem(name, expression, int(level))
     d = (out / name).resolve()
-    return {"scan": str(d / f"{stem}.ply"), "gt": str(d / f"{stem}.json"), "dense": str(d / f"{stem}_dense.npz"),
+    return {"scan": str(d / f"{stem}{_scan_suffix(colour)}"), "gt": str(d / f"{stem}.json"), "dense": str(d / f"{stem}_dense.npz"),
             "subject": name, "expression": expression, "level": int(level), "split": subject_split(name)}
 
 
