@@ -16,6 +16,7 @@ from ..geometry.mesh import Mesh
 from ..landmarks.predict import PredictOptions
 from ..names import LANDMARK_NAMES
 from ..options import resolve
+from ..registration.neutral import NeutralOptions
 from ..registration.register import RegisterOptions
 
 
@@ -43,6 +44,10 @@ class Result:
     surface_distance : (N,) float64 or None, each registered vertex's distance to the scan's
         surface, mm (:func:`facecorr.geometry.spatial.surface_distance`): ~0 where the template
         lies on the scan, growing where it misses it or reaches past its border.
+    neutral_vertices : (N, 3) float64 or None, the expression-removed shape: the registered
+        template with the fitted expression taken away (same identity, neutral face, same vertex
+        order), mm, the scan's frame (:func:`facecorr.registration.neutral.neutral_shape`).
+    neutral_removed : dict blendshape name -> weight taken away for it, or None.
     timings_s : dict stage -> seconds.
     flags : list of str, warnings (low-confidence landmarks, ...).
     to_mm, units : the scan's units (results are written back in them).
@@ -71,6 +76,8 @@ class Result:
     units: str = "mm"
     fit_rms: float | None = None
     surface_distance: np.ndarray | None = None
+    neutral_vertices: np.ndarray | None = None
+    neutral_removed: dict | None = None
     uncovered: np.ndarray | None = None
     colors: np.ndarray | None = None
     color_source: str | None = None
@@ -120,13 +127,16 @@ class Result:
             "timings_s": {k: round(float(v), 4) for k, v in self.timings_s.items()},
             "flags": list(self.flags),
             "colour": self.colour_json(),
+            "neutral_expression_removed": None if self.neutral_removed is None else {
+                k: float(v) for k, v in self.neutral_removed.items()},
             **({} if self.point_set is None else
                {"point_set": {k: (np.asarray(v) * s).tolist() for k, v in self.point_set.items()}}),
         }
 
-    def save(self, mesh_path, json_path=None, *, also=(), inputs=()) -> None:
-        """Write the registered template (scan's units) and optionally the JSON, as a group: both
-        are written or neither (nothing of them is left on any error).
+    def save(self, mesh_path, json_path=None, *, neutral_path=None, also=(), inputs=()) -> None:
+        """Write the registered template (scan's units) and optionally the JSON and the
+        expression-removed shape (``neutral_path``, a mesh file in the scan's units), as a group:
+        all are written or none (nothing of them is left on any error).
 
         ``also``: more files of the same group, pairs ``(path, writer)`` with ``writer(tmp_path)``
         writing the file (e.g. the PNG); ``inputs``: paths the outputs must not overwrite.
@@ -143,6 +153,12 @@ class Result:
         outputs = [("the mesh", mesh_path)]
         if json_path is not None:
             outputs.append(("the JSON", Path(json_path)))
+        if neutral_path is not None:
+            if self.neutral_vertices is None:
+                raise ValueError("this result has no neutral shape (CorrespondOptions.neutral was None)")
+            also = [(neutral_path, lambda tmp: save_mesh(tmp, (self.neutral_vertices / self.to_mm, self.faces))),
+                    *also]
+            format_of(Path(neutral_path))
         outputs += [("an output", Path(p)) for p, _ in also]
         check_output_paths(outputs, inputs=inputs)
         format_of(mesh_path)  # an unknown mesh format, named by the user's path
@@ -219,6 +235,9 @@ class CorrespondOptions:
     # Pieces with at least this share of the largest piece's area count as separate surfaces
     # (several faces or a face cut in two); smaller ones are specks and hair.
     large_piece_fraction: float = 0.2
+    # The expression-removed shape (Result.neutral_vertices; None: not computed). See
+    # facecorr.registration.neutral.
+    neutral: NeutralOptions | None = field(default_factory=NeutralOptions)
 
 
 def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, template=None,
@@ -303,6 +322,15 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         timings["colour"] = time.perf_counter() - t1
     if mesh.meta.get("colour_note"):
         flags.append(f"colour_not_used:{mesh.meta['colour_note']}")
+    neutral = removed = None
+    if opts.neutral is not None:
+        from ..registration.neutral import neutral_shape
+
+        t1 = time.perf_counter()
+        neutral, alpha_removed = neutral_shape(reg.vertices, template, options=opts.neutral)
+        neutral = neutral + offset
+        removed = {str(n): float(a) for n, a in zip(template.blendshape_names, alpha_removed)}
+        timings["neutral"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     return Result(
         vertices=reg.vertices + offset,
@@ -323,6 +351,8 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         uncovered=uncovered,
         colors=colors,
         color_source=work.color_source,
+        neutral_vertices=neutral,
+        neutral_removed=removed,
     )
 
 
