@@ -130,10 +130,13 @@ def test_dask_batch_writes_the_local_batch_files_then_resumes_shipping_bytes(sca
         res = json.loads((out / Path(ln["scan"]).relative_to(src).with_suffix(".json")).read_text())
         assert ln["status"] == "ok" and ln["mhd"] == res["mhd"] and ln["flags"] == res["flags"]
         assert ln["timings_s"] == res["timings_s"] and ln["worker"] in workers and ln["seconds"] > 0
-    # resume, now without a shared filesystem: one result gone, only it is redone, from shipped bytes
+    # resume, now without a shared filesystem: one result gone, only it is redone, from shipped
+    # bytes (the scheduler named by a scheduler file this time)
     gone = next(out.glob("*SU04*.ply"))
     gone.unlink()
-    rc, cap = _main(capsys, "batch", src, out, "--scheduler", address, "--png", "--landmark-set", points,
+    sched = tmp_path / "scheduler.json"
+    sched.write_text(json.dumps({"address": address}))  # what `dask scheduler --scheduler-file` writes, in part
+    rc, cap = _main(capsys, "batch", src, out, "--scheduler", sched, "--png", "--landmark-set", points,
                     "--ship-bytes", "--log", log, "--quiet")
     assert rc == 2 and cap.out == "", cap.out  # --quiet: only the errors (on stderr)
     assert BROKEN in cap.err and "registering" not in cap.err, cap.err

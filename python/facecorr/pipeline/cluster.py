@@ -50,6 +50,8 @@ from .batch import check_register_outputs, failure_row, packaged_model, register
 TASK_RETRIES = 1
 #: Times a future lost otherwise (cancelled, unreadable result) is submitted again.
 RESUBMITS = 2
+#: Seconds between two looks at the cluster's size (the window of tasks in flight follows it).
+WINDOW_REFRESH_S = 2.0
 #: Seconds to wait for a remote scheduler to answer.
 CONNECT_TIMEOUT_S = 30
 
@@ -268,7 +270,8 @@ def cluster_results(jobs, client, *, ship_bytes: bool = False, points=None, prog
         check_workers(client, None)
     todo = [(j, 0) for j in reversed(jobs)]  # (job, resubmissions so far), next job last
     inflight = {}  # future -> (job, resubmissions)
-    done = as_completed()
+    # results are fetched in the background as tasks finish (no round trip per scan here)
+    done = as_completed(loop=client.loop, with_results=True, raise_errors=False)
 
     def submit(job, attempt):
         """Submit ``job``; a row at once when it cannot even be sent (outputs refused, unreadable scan)."""
@@ -287,14 +290,13 @@ def cluster_results(jobs, client, *, ship_bytes: bool = False, points=None, prog
         done.add(f)
         return None
 
-    def outcome(f, job, attempt):
+    def outcome(f, result, job, attempt):
         """The row of a completed future, or None when it was submitted again."""
         scan = job[0]
         if f.status == "finished":
-            try:
-                row = f.result()
-            except Exception as e:  # noqa: BLE001 - the result could not be fetched
-                return _again(job, attempt, e)
+            if not isinstance(result, dict):  # the result could not be fetched
+                return _again(job, attempt, RuntimeError(f"its result was lost ({type(result).__name__})"))
+            row = dict(result)
             files = row.pop("files", None)
             row["scan"] = str(scan)
             if row["ok"]:
@@ -318,9 +320,11 @@ def cluster_results(jobs, client, *, ship_bytes: bool = False, points=None, prog
         return failure_row(job[0], e)
 
     bar = tqdm(total=len(jobs), desc=desc, unit="scan", disable=not progress)
+    window, window_at = _window(client), time.monotonic()
     try:
         while todo or inflight:
-            window = _window(client)
+            if time.monotonic() - window_at > WINDOW_REFRESH_S:  # the cluster may have grown
+                window, window_at = _window(client), time.monotonic()
             while todo and len(inflight) < window:
                 row = submit(*todo.pop())
                 if row is not None:
@@ -328,9 +332,9 @@ def cluster_results(jobs, client, *, ship_bytes: bool = False, points=None, prog
                     yield row
             if not inflight:
                 continue
-            f = next(done)
+            f, result = next(done)
             job, attempt = inflight.pop(f)
-            row = outcome(f, job, attempt)
+            row = outcome(f, result, job, attempt)
             f.release()
             if row is not None:
                 bar.update()
