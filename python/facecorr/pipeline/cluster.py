@@ -32,8 +32,9 @@ Workers
     A worker process keeps the template and the landmark model loaded across its scans (process
     caches, warmed on every worker before the first task). ``"local"`` starts a LocalCluster of
     ``workers`` processes with one thread each; their ``FACECORR_THREADS`` is the client's if set,
-    else the machine's cores shared between them. Workers of a remote cluster use their own
-    environment's ``FACECORR_THREADS`` (2 by default).
+    else the machine's cores shared between them, and Dask's profiler is off in them. Workers of
+    a remote cluster use their own environment's ``FACECORR_THREADS`` (2 by default) and Dask
+    config (``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False`` saves them the profiler).
 """
 
 from __future__ import annotations
@@ -88,12 +89,18 @@ def connect(scheduler: str, *, workers: int = 2):
     if scheduler == "local":
         if workers < 1:
             raise FacecorrError("--workers must be at least 1")
-        cluster = distributed.LocalCluster(
-            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-            env={"FACECORR_THREADS": local_threads(workers)},
-            # the batch reports what matters itself (failures.json, the bar); Dask's warnings
-            # (a worker restarted, a slow event loop) would only break the bar
-            silence_logs=logging.ERROR)
+        import dask
+
+        # The workers' statistical profiler samples the scan's thread 100 times a second (for the
+        # dashboard, which a batch does not start): about 10 % of a worker's CPU. The workers
+        # take the config as it is when the cluster is made.
+        with dask.config.set({"distributed.worker.profile.enabled": False}):
+            cluster = distributed.LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                env={"FACECORR_THREADS": local_threads(workers)},
+                # the batch reports what matters itself (failures.json, the bar); Dask's warnings
+                # (a worker restarted, a slow event loop) would only break the bar
+                silence_logs=logging.ERROR)
         try:
             client = distributed.Client(cluster)
         except BaseException:
