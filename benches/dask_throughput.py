@@ -110,13 +110,54 @@ def _scheduler_rate(workers: int, window: int | None = None, n: int = 3000) -> f
         return n / (time.perf_counter() - t0)
 
 
+def _idle_cpu(workers: int, batch_settings: bool, seconds: float = 20.0) -> tuple:
+    """CPU seconds (client process, each worker) an idle LocalCluster burns in ``seconds``: the
+    batch's own (``connect("local")``) or one with Dask's default settings."""
+    import psutil
+
+    from facecorr.pipeline.cluster import check_workers, connect
+
+    def cpu(p):
+        t = p.cpu_times()
+        return t.user + t.system
+
+    if batch_settings:
+        ctx = connect("local", workers=workers)
+    else:
+        from contextlib import contextmanager
+
+        import distributed
+
+        @contextmanager
+        def ctx_fn():
+            with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=None,
+                                          silence_logs=40) as c, distributed.Client(c) as client:
+                yield client
+        ctx = ctx_fn()
+    with ctx as client:
+        check_workers(client, None)
+        procs = [psutil.Process()] + [psutil.Process(p) for p in client.run(os.getpid).values()]
+        a = [cpu(p) for p in procs]
+        time.sleep(seconds)
+        b = [cpu(p) for p in procs]
+    return tuple(round(y - x, 2) for x, y in zip(a, b))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--db", default="/work/db/bu3dfe_eval")
     ap.add_argument("--scans", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--threads", default="1", help="FACECORR_THREADS of every run (default 1)")
+    ap.add_argument("--idle", action="store_true",
+                    help="only measure the CPU an idle LocalCluster burns in 20 s (Dask's defaults, the batch's settings)")
     args = ap.parse_args()
+    if args.idle:
+        for batch in (False, True):
+            c, *w = _idle_cpu(args.workers, batch)
+            print(f"idle LocalCluster, {'the batch' if batch else 'Dask'}'s settings: 20 s cost {c} s CPU in the client "
+                  f"process (scheduler, nannies), {w} s in the workers")
+        return 0
 
     tmp = Path(tempfile.mkdtemp(prefix="facecorr-dask-bench-"))
     try:

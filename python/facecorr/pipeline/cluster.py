@@ -92,9 +92,13 @@ def connect(scheduler: str, *, workers: int = 2):
         import dask
 
         # The workers' statistical profiler samples the scan's thread 100 times a second (for the
-        # dashboard, which a batch does not start): about 10 % of a worker's CPU. The workers
-        # take the config as it is when the cluster is made.
-        with dask.config.set({"distributed.worker.profile.enabled": False}):
+        # dashboard, which a batch does not start): about 10 % of a worker's CPU. The event loops'
+        # tick watch (20 ms) and system monitor (0.5 s) feed the dashboard too; slower, they halve
+        # an idle cluster's CPU (BENCHMARKS.md). The scheduler and the workers take the config
+        # as it is when the cluster is made.
+        quiet_loops = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "500ms",
+                       "distributed.admin.system-monitor.interval": "2s"}
+        with dask.config.set(quiet_loops):
             cluster = distributed.LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                 env={"FACECORR_THREADS": local_threads(workers)},
