@@ -8,6 +8,7 @@ from pathlib import Path
 
 from .common import add_run_options, open_log
 
+
 def add_commands(sub) -> None:
     p = sub.add_parser("register", help="register the template onto one scan",
                        description="Predict the 8 landmarks, then fit the blendshape template "
@@ -127,7 +128,7 @@ def cmd_batch(args) -> int:
         log = open_log(args, inputs=[j[0] for j in jobs])
         if log is not None:
             stack.enter_context(log)
-        if args.scheduler:
+        if args.scheduler and jobs:  # (nothing left to do: no cluster to start)
             from ..pipeline.cluster import cluster_results, connect
 
             client = stack.enter_context(connect(args.scheduler, workers=max(1, args.workers)))
