@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from .common import add_run_options, open_log
+
 
 def add_commands(sub) -> None:
     e = sub.add_parser("eval", help="evaluate on a synthetic database (paper Tables 1-3, Fig. 10)")
@@ -13,6 +15,7 @@ def add_commands(sub) -> None:
     er.add_argument("--gt-landmarks", action="store_true", help="guide by the ground-truth landmarks instead of predicted ones")
     er.add_argument("--workers", type=int, default=2)
     er.add_argument("--limit", type=int, help="only the first N evaluation scans")
+    add_run_options(er)
     er.set_defaults(func=cmd_eval_registration)
 
     e = esub.add_parser("landmarks", help="paper Tables 1/2: per-landmark errors and detection rates")
@@ -25,22 +28,67 @@ def add_commands(sub) -> None:
     e.add_argument("--method", default="default", choices=["default", "paper"],
                    help="default (protrusion start + template patches) or paper (umbilic/FPPCA start + BP)")
     e.add_argument("--no-png", action="store_true", help="skip landmarks.png (true vs predicted on 8 scans)")
+    add_run_options(e)
     e.set_defaults(func=cmd_eval_landmarks)
+
+
+#: Per-scan fields of each evaluation's rows that its --log lines carry.
+_LOGGED = {
+    "registration": ("seconds", "mhd", "dense_mean", "landmark_errors", "timings_s", "error"),
+    "landmarks": ("seconds", "errors", "confidence", "flags", "timings_s", "error"),
+}
+
+
+def _logger(log, what):
+    """on_row for an evaluation: one --log line per scan (None without --log)."""
+    if log is None:
+        return None
+
+    def write(row):
+        log.write({"scan": row["scan"], "status": "ok" if row["ok"] else "failed",
+                   **{k: row[k] for k in _LOGGED[what] if row.get(k) is not None}})
+
+    return write
+
+
+def _failed_lines(rows) -> None:
+    import sys
+
+    for r in rows:
+        if not r["ok"]:
+            print(f"  {r['scan']}: {r['error']}", file=sys.stderr)
 
 
 def cmd_eval_registration(args) -> int:
     from ..evaluation.registration import evaluate_registration
 
-    rows = evaluate_registration(args.db, args.out, use_gt_landmarks=args.gt_landmarks,
-                                 workers=args.workers, limit=args.limit)
+    log = open_log(args)
+    try:
+        rows = evaluate_registration(args.db, args.out, use_gt_landmarks=args.gt_landmarks,
+                                     workers=args.workers, limit=args.limit, progress=not args.quiet,
+                                     on_row=_logger(log, "registration"), quiet=args.quiet)
+    finally:
+        if log is not None:
+            log.close()
+    if args.quiet:
+        _failed_lines(rows)
     return 0 if all(r["ok"] for r in rows) else 1
 
 
 def cmd_eval_landmarks(args) -> int:
     from ..evaluation.landmarks import evaluate_landmarks
 
-    _, rows, md = evaluate_landmarks(args.db, args.out, model=args.model, workers=args.workers,
-                                     limit=args.limit, rotate=args.rotate, method=args.method,
-                                     png=not args.no_png)
-    print(md)
+    log = open_log(args)
+    try:
+        _, rows, md = evaluate_landmarks(args.db, args.out, model=args.model, workers=args.workers,
+                                         limit=args.limit, rotate=args.rotate, method=args.method,
+                                         png=not args.no_png, progress=not args.quiet,
+                                         on_row=_logger(log, "landmarks"))
+    finally:
+        if log is not None:
+            log.close()
+    if args.quiet:
+        _failed_lines(rows)
+    else:
+        print(md)
     return 0 if all(r["ok"] for r in rows) else 1

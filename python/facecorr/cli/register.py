@@ -6,6 +6,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from .common import add_run_options, open_log
+
+
 def add_commands(sub) -> None:
     p = sub.add_parser("register", help="register the template onto one scan",
                        description="Predict the 8 landmarks, then fit the blendshape template "
@@ -33,6 +36,14 @@ def add_commands(sub) -> None:
     b.add_argument("--overwrite", action="store_true", help="redo scans that already have results")
     b.add_argument("--units", default="auto", choices=["auto", "mm", "cm", "m"])
     b.add_argument("--landmark-set", metavar="FILE", help="your own points on the template, read off every result")
+    b.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a Dask cluster: 'local' (a LocalCluster of --workers processes), a scheduler "
+                        "address (tcp://host:8786) or a scheduler file (.json); needs facecorr[dask]. The workers "
+                        "read the scans at the paths this machine sees (a shared filesystem) unless --ship-bytes; "
+                        "this process writes the results")
+    b.add_argument("--ship-bytes", action="store_true",
+                   help="with --scheduler: send each scan's bytes to the workers (no shared filesystem needed)")
+    add_run_options(b)
     b.set_defaults(func=cmd_batch)
 
     x = sub.add_parser("export-points", help="the iBUG-68 points and landmarks of a batch's results, in one table",
@@ -84,16 +95,22 @@ def _write_failures(path: Path, rows: list) -> None:
 
 
 def cmd_batch(args) -> int:
+    from contextlib import ExitStack
+
+    from ..errors import FacecorrError
     from ..io.atomic import remove_stale_temps
     from ..pipeline.batch import FAILURES_NAME, plan_batch, register_job
     from ..threads import process_iter
 
     dst = Path(args.output_dir)
+    if args.ship_bytes and not args.scheduler:
+        raise FacecorrError("--ship-bytes needs --scheduler (the local batch reads the scans itself)")
+    points = None
     if args.landmark_set:  # checked once, up front: a bad file is one error, not one per scan
         from ..template import load_template
         from ..template.point_sets import read_point_set
 
-        read_point_set(args.landmark_set, load_template())
+        points = read_point_set(args.landmark_set, load_template())
     jobs, skipped = plan_batch(Path(args.input_dir), dst, overwrite=args.overwrite, png=args.png, units=args.units,
                                point_set=args.landmark_set)
     failures_path = dst / FAILURES_NAME
@@ -105,29 +122,53 @@ def cmd_batch(args) -> int:
 
     def failures() -> list:
         done = {r["scan"] for r in rows}
-        return [r for r in earlier if r["scan"] not in done] + [r for r in rows if not r["ok"]]
+        return [r for r in earlier if r["scan"] not in done] + \
+               [{k: r[k] for k in ("scan", "ok", "error")} for r in rows if not r["ok"]]
 
-    gen = process_iter(register_job, jobs, workers=max(1, args.workers), desc="registering", ordered=False)
-    try:
-        for row in gen:
-            rows.append(row)
-            if not row["ok"]:
+    with ExitStack() as stack:
+        log = open_log(args, inputs=[j[0] for j in jobs])
+        if log is not None:
+            stack.enter_context(log)
+        if args.scheduler and jobs:  # (nothing left to do: no cluster to start)
+            from ..pipeline.cluster import cluster_results, connect
+
+            client = stack.enter_context(connect(args.scheduler, workers=max(1, args.workers)))
+            gen = cluster_results(jobs, client, ship_bytes=args.ship_bytes, points=points, progress=not args.quiet)
+        else:
+            gen = process_iter(register_job, jobs, workers=max(1, args.workers), desc="registering", ordered=False,
+                               progress=not args.quiet)
+        try:
+            for row in gen:
+                rows.append(row)
+                if log is not None:
+                    log.write(_log_line(row))
+                if not row["ok"]:
+                    _write_failures(failures_path, failures())
+        finally:
+            gen.close()  # on Ctrl-C / SIGTERM: queued jobs cancelled, running workers stopped
+            for job in jobs:
+                for p in job[1:4]:
+                    if p is not None:
+                        remove_stale_temps(p)
+            if failures() or failures_path.exists():
                 _write_failures(failures_path, failures())
-    finally:
-        gen.close()  # on Ctrl-C / SIGTERM: queued jobs cancelled, running workers stopped
-        for job in jobs:
-            for p in job[1:4]:
-                if p is not None:
-                    remove_stale_temps(p)
-        if failures() or failures_path.exists():
-            _write_failures(failures_path, failures())
     failed = [r for r in rows if not r["ok"]]
     done = len(rows) - len(failed)
-    print(f"{done} registered, {skipped} already done, {len(failed)} failed"
-          + (f" (see {failures_path})" if failed else ""))
+    if not args.quiet:
+        print(f"{done} registered, {skipped} already done, {len(failed)} failed"
+              + (f" (see {failures_path})" if failed else ""))
     for r in failed:
         print(f"  {r['scan']}: {r['error']}", file=sys.stderr)
     return 2 if failed else 0
+
+
+def _log_line(row: dict) -> dict:
+    """The --log line of a batch row: scan, status, seconds, mhd, coverage, flags, timings_s, error, worker."""
+    line = {"scan": row["scan"], "status": "ok" if row["ok"] else "failed"}
+    for k in ("seconds", "mhd", "coverage", "flags", "timings_s", "error", "worker"):
+        if row.get(k) is not None:
+            line[k] = row[k]
+    return line
 
 
 def _demo_report(result, gt, label) -> None:

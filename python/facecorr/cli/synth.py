@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 import time
 
+from .common import add_run_options, open_log
+
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser(
@@ -29,7 +31,7 @@ def add_commands(subparsers) -> None:
                    help="also colour the scans (a smooth skin pattern with exact ground truth): vertex = PLY with "
                         "per-vertex RGB, texture = OBJ + MTL + PNG")
     p.add_argument("--preview", metavar="PNG", default=None, help="also write a contact sheet of the first subject")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_run_options(p)
     p.set_defaults(func=run_synth)
 
 
@@ -41,15 +43,21 @@ def run_synth(args) -> int:
     if args.any_rotation:
         opts["uniform_rotation"] = True
     t0 = time.perf_counter()
-    recs = generate(
-        args.out_dir, preset=args.preset, seed=args.seed, workers=args.workers, crop=args.crop,
-        subjects=args.subjects, subset=args.subset,
-        expressions=args.expressions.split(",") if args.expressions else None,
-        levels=args.levels.split(",") if args.levels else None,
-        progress=not args.quiet, colour=args.colour, **opts,
-    )
+    log = open_log(args)
+    try:
+        recs = generate(
+            args.out_dir, preset=args.preset, seed=args.seed, workers=args.workers, crop=args.crop,
+            subjects=args.subjects, subset=args.subset,
+            expressions=args.expressions.split(",") if args.expressions else None,
+            levels=args.levels.split(",") if args.levels else None,
+            progress=not args.quiet, colour=args.colour, on_scan=None if log is None else log.write, **opts,
+        )
+    finally:
+        if log is not None:
+            log.close()
     dt = time.perf_counter() - t0
-    print(f"{len(recs)} scans in {dt:.1f} s -> {args.out_dir}/index.json", file=sys.stderr)
+    if not args.quiet:
+        print(f"{len(recs)} scans in {dt:.1f} s -> {args.out_dir}/index.json", file=sys.stderr)
     if args.preview:
         allr = load_index(args.out_dir)
         first = allr[0]["subject"]
@@ -59,7 +67,8 @@ def run_synth(args) -> int:
             if r["expression"] not in top or r["level"] > top[r["expression"]]["level"]:
                 top[r["expression"]] = r
         contact_sheet(list(top.values()), args.preview, title=f"{first}: highest level per expression (red: 8 landmarks, blue: iBUG-68)")
-        print(f"preview -> {args.preview}", file=sys.stderr)
+        if not args.quiet:
+            print(f"preview -> {args.preview}", file=sys.stderr)
     return 0
 
 

@@ -69,12 +69,17 @@ def write_reports(rows, out_dir: Path) -> str:
     return md
 
 
-def evaluate_registration(db_dir, out_dir, *, use_gt_landmarks=False, workers=2, limit=None, split="test"):
-    """Run and report the registration evaluation; returns the per-scan rows."""
+def evaluate_registration(db_dir, out_dir, *, use_gt_landmarks=False, workers=2, limit=None, split="test",
+                          progress=True, on_row=None, quiet=False):
+    """Run and report the registration evaluation; returns the per-scan rows.
+
+    ``progress``: the bar; ``on_row``: called with each per-scan row as it comes; ``quiet``: do not
+    print the table (it is in ``out_dir``)."""
     from .runner import run_on_eval_scans
 
     rows = run_on_eval_scans(db_dir, _eval_one, lambda k, r: (r, use_gt_landmarks), workers=workers, limit=limit,
-                             split=split)
+                             split=split, progress=progress, on_row=on_row)
     md = write_reports(rows, Path(out_dir))
-    print(md)
+    if not quiet:
+        print(md)
     return rows

@@ -26,15 +26,16 @@ def write_report(out_dir, stem: str, markdown: str, table: list, columns: str, r
 
 
 def run_on_eval_scans(db_dir, worker, make_job, *, workers=2, limit=None, split="test", desc="evaluating",
-                      progress=True) -> list:
+                      progress=True, on_row=None) -> list:
     """``[worker(make_job(k, record)) ...]`` over the evaluation scans of ``db_dir`` (in order).
 
     ``worker`` must be a module-level function that never raises (it returns a row with
-    ``"ok"``); ``limit`` keeps the first scans only. Raises FacecorrError if there are none.
+    ``"ok"``); ``limit`` keeps the first scans only; ``on_row(row)`` is called with each row as it
+    comes (a run log). Raises FacecorrError if there are none.
     """
     from ..errors import FacecorrError
     from ..synth import load_index
-    from ..threads import process_map
+    from ..threads import process_iter
 
     records = select_eval_records(load_index(db_dir), split=split)
     if limit:
@@ -42,4 +43,9 @@ def run_on_eval_scans(db_dir, worker, make_job, *, workers=2, limit=None, split=
     if not records:
         raise FacecorrError(f"{db_dir}: no {split} scans at the evaluation level")
     jobs = [make_job(k, r) for k, r in enumerate(records)]
-    return process_map(worker, jobs, workers=workers, desc=desc, progress=progress)
+    rows = []
+    for row in process_iter(worker, jobs, workers=workers, desc=desc, progress=progress):
+        rows.append(row)
+        if on_row is not None:
+            on_row(row)
+    return rows

@@ -77,42 +77,79 @@ _PICTURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
 def register_file(scan_path, out_mesh, out_json=None, png=None, units="auto", landmarks_json=None, point_set=None,
-                  picture="registration"):
+                  picture="registration", model=None):
     """Load, register and write one scan. Returns the Result (raises FacecorrError on bad input).
 
     ``point_set``: a point-set JSON on the template (:mod:`facecorr.template.point_sets`), read off
-    the result into its JSON's ``point_set``. ``picture``: what ``png`` shows, "registration" (the
-    scan beside the registered template, :func:`facecorr.render.plot_registration`) or "thumbnail"
-    (a small one for a batch's report, :func:`facecorr.render.thumbnail_png`; PNG only). The
-    outputs are checked before the work and written as a group: all of them or none."""
-    import numpy as np
-
-    from ..io import load_mesh
-    from ..names import LANDMARK_NAMES
-    from ..render import plot_registration, thumbnail_png
-    from ..template import load_template
-    from .correspond import correspond
-
+    the result into its JSON's ``point_set``; ``picture``: what ``png`` shows (see
+    :func:`save_registration`); ``model``: as in :func:`register_scan`. The outputs are checked
+    before the work and written as a group: all of them or none."""
     check_register_outputs(scan_path, out_mesh, out_json, png)
     points = None
     if point_set is not None:
+        from ..template import load_template
         from ..template.point_sets import read_point_set
 
         points = read_point_set(point_set, load_template())
+    mesh, result = register_scan(scan_path, units=units, landmarks_json=landmarks_json, points=points, model=model)
+    save_registration(mesh, result, out_mesh, out_json, png, title=Path(scan_path).name, inputs=[scan_path],
+                      picture=picture)
+    return result
+
+
+def register_scan(scan_path, *, units="auto", landmarks_json=None, points=None, model=None):
+    """(mesh, Result) of one scan file: loaded, registered, ``points`` (a PointSet) read off it.
+
+    ``model``: a loaded landmark model (default: the packaged one); a batch passes
+    :func:`packaged_model` so a worker reads it once. Raises FacecorrError on bad input."""
+    from ..io import load_mesh
+    from .correspond import correspond
+
     mesh = load_mesh(scan_path, units=units)
     lms = read_landmarks_json(landmarks_json, mesh) if landmarks_json else None
-    result = correspond(mesh, landmarks=lms)
+    result = correspond(mesh, landmarks=lms, model=model)
     if points is not None:
         result.point_set = points.on(result.vertices)
+    return mesh, result
+
+
+def save_registration(mesh, result, out_mesh, out_json=None, png=None, *, title, inputs=(),
+                      picture="registration") -> None:
+    """Write a registration's files as a group (all or none): the mesh, the JSON, the picture
+    (titled ``title``, the scan's file name). The one writer of ``register``, the local batch and
+    the Dask workers, so all three write the same bytes. ``picture``: what ``png`` shows,
+    "registration" (the scan beside the registered template, :func:`facecorr.render.
+    plot_registration`) or "thumbnail" (a small one for a batch's report,
+    :func:`facecorr.render.thumbnail_png`; PNG only)."""
+    from ..render import plot_registration
+    from ..template import load_template
+
     also = []
     if png and picture == "thumbnail":
+        import numpy as np
+
+        from ..names import LANDMARK_NAMES
+        from ..render import thumbnail_png
+
         also.append((png, lambda tmp: tmp.write_bytes(thumbnail_png(
             result.vertices, result.faces, result.surface_distance, load_template(), scan=mesh,
             landmarks=np.array([result.landmarks[n] for n in LANDMARK_NAMES])))))
     elif png:
-        also.append((png, lambda tmp: plot_registration(mesh, result, tmp, load_template(), title=Path(scan_path).name)))
-    result.save(out_mesh, out_json, also=also, inputs=[scan_path])
-    return result
+        also.append((png, lambda tmp: plot_registration(mesh, result, tmp, load_template(), title=title)))
+    result.save(out_mesh, out_json, also=also, inputs=inputs)
+
+
+def packaged_model():
+    """The packaged landmark model, read once per process (a batch worker keeps it warm)."""
+    global _PACKAGED_MODEL
+    if _PACKAGED_MODEL is None:
+        from ..landmarks.model import load_model
+
+        _PACKAGED_MODEL = load_model(None)
+    return _PACKAGED_MODEL
+
+
+_PACKAGED_MODEL = None
 
 
 #: The batch's own record in OUTPUT_DIR.
@@ -193,18 +230,33 @@ def plan_batch(src: Path, dst: Path, *, overwrite: bool = False, png: bool = Fal
 
 
 def register_job(job):
-    """Worker: register one scan (its PNG, if any, the report's thumbnail); never raises (returns a
-    status row)."""
+    """Worker: register one scan into its result files (its PNG, if any, the report's thumbnail);
+    never raises (returns a status row, :func:`status_row`)."""
     scan, out_mesh, out_json, png, units, point_set = job
     t0 = time.perf_counter()
     try:
-        register_file(scan, out_mesh, out_json, png, units, point_set=point_set, picture="thumbnail")
-        return {"scan": str(scan), "ok": True, "seconds": round(time.perf_counter() - t0, 3)}
+        result = register_file(scan, out_mesh, out_json, png, units, point_set=point_set, picture="thumbnail",
+                               model=packaged_model())
+        return status_row(scan, t0, result)
     except Exception as e:  # noqa: BLE001 - one bad scan must not stop the batch
-        from ..errors import FacecorrError
+        return failure_row(scan, e)
 
-        kind = "bad input" if isinstance(e, FacecorrError) else f"internal error ({type(e).__name__})"
-        return {"scan": str(scan), "ok": False, "error": f"{kind}: {str(e).splitlines()[0] if str(e) else ''}"}
+
+def status_row(scan, t0: float, result) -> dict:
+    """The row of a registered scan: ``scan``, ``ok`` (True), ``seconds`` (wall, load to written),
+    and what a run log records of it: ``mhd`` (scan units), ``coverage``, ``flags``, ``timings_s``."""
+    js = result.to_json()
+    return {"scan": str(scan), "ok": True, "seconds": round(time.perf_counter() - t0, 3), "mhd": js["mhd"],
+            "coverage": js["coverage"], "flags": js["flags"], "timings_s": js["timings_s"]}
+
+
+def failure_row(scan, e: BaseException) -> dict:
+    """The row of a failed scan, as failures.json holds it: ``scan``, ``ok`` (False), ``error``
+    ("bad input: ..." for a FacecorrError, else "internal error (Type): ...", one line)."""
+    from ..errors import FacecorrError
+
+    kind = "bad input" if isinstance(e, FacecorrError) else f"internal error ({type(e).__name__})"
+    return {"scan": str(scan), "ok": False, "error": f"{kind}: {str(e).splitlines()[0] if str(e) else ''}"}
 
 
 def collect_points(results_dir) -> list[dict]:

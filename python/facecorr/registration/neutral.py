@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..geometry.transforms import kabsch, rotation_from_vector
 from .expression import box_qp
@@ -83,6 +84,13 @@ def neutral_shape(vertices, template, basis: IdentityBasis | None = None,
     neutral : (N, 3) mm, the same frame as ``vertices``.
     alpha : (K,) the blendshape weights taken away (template.blendshape_names order).
     """
+    # Single-threaded BLAS: the products are small, and the answer must not depend on how many
+    # threads a worker's BLAS happens to have (a Dask worker's and a local batch's files agree).
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _neutral_shape(vertices, template, basis, options)
+
+
+def _neutral_shape(vertices, template, basis, options):
     o = options or NeutralOptions()
     basis = basis or packaged_neutral_basis()
     v = np.asarray(vertices, dtype=np.float64)

@@ -203,7 +203,7 @@ def scan_list(preset="tiny", subjects=None, expressions=None, levels=None, subse
 
 
 def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=None, expressions=None,
-             levels=None, subset=None, progress=True, config: ScannerConfig | None = None, colour=None,
+             levels=None, subset=None, progress=True, config: ScannerConfig | None = None, colour=None, on_scan=None,
              **scanner_options):
     """Generate the database into ``out_dir`` and return the index records.
 
@@ -221,6 +221,8 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
     config : a ScannerConfig; ``scanner_options`` override its fields (e.g. yaw=90, spacing=1.2).
     colour : None (no colour), "vertex" (PLY with per-vertex RGB) or "texture" (OBJ + MTL + PNG);
         see :mod:`facecorr.synth.colour`.
+    on_scan : optional callable, called with ``{"scan", "status", "seconds", "vertices", "faces"}``
+        (the scan's path relative to ``out_dir``) as each scan is written (a run log).
 
     Returns
     -------
@@ -237,19 +239,26 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
     from tqdm import tqdm
 
     bar = tqdm(total=len(args), desc="synth", unit="scan", disable=not progress)
+    results = []
+
+    def done(r):  # results come in job order
+        subject = jobs[len(results)][0]
+        results.append(r)
+        bar.update()
+        if on_scan is not None:
+            stem, n_v, n_f, secs = r
+            on_scan({"scan": f"{subject}/{stem}.ply", "status": "ok", "seconds": round(secs, 3),
+                     "vertices": n_v, "faces": n_f})
+
     if int(workers) == 1:
-        results = []
         for a in args:
-            results.append(_job(a))
-            bar.update()
+            done(_job(a))
     else:
         import multiprocessing as mp
 
         with ProcessPoolExecutor(int(workers), mp_context=mp.get_context("spawn"), initializer=_init_worker) as ex:
-            results = []
             for r in ex.map(_job, args, chunksize=1):
-                results.append(r)
-                bar.update()
+                done(r)
     bar.close()
     records = []
     for (s, e, lv), _ in zip(jobs, results):
