@@ -60,3 +60,33 @@ def test_residual_detail_stays_and_a_neutral_face_is_left_alone():
 def test_wrong_shape_is_refused():
     with pytest.raises(ValueError, match="template"):
         neutral_shape(np.zeros((10, 3)), load_template())
+
+
+def test_register_neutral_writes_the_shape_with_the_mesh(tmp_path):
+    """`facecorr register SCAN -o OUT --neutral N`: N has the template's vertex order, differs
+    from OUT by the removed expression only, and a bad N path is refused before the work."""
+    import json
+    import sys
+    from pathlib import Path
+
+    import trimesh
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from synthetic_face import make_scan
+
+    from facecorr.cli import main
+    from facecorr.io import save_mesh
+
+    mesh, _, _, _ = make_scan(0)
+    scan = tmp_path / "s.ply"
+    save_mesh(scan, mesh)
+    assert main(["register", str(scan), "-o", str(tmp_path / "x.ply"), "--neutral", str(tmp_path / "x.abc")]) == 2
+    assert not (tmp_path / "x.ply").exists()
+    rc = main(["register", str(scan), "-o", str(tmp_path / "r.ply"), "--json", str(tmp_path / "r.json"),
+               "--neutral", str(tmp_path / "n.ply")])
+    assert rc == 0
+    reg = np.asarray(trimesh.load(tmp_path / "r.ply", process=False).vertices)
+    neu = np.asarray(trimesh.load(tmp_path / "n.ply", process=False).vertices)
+    assert reg.shape == neu.shape == (load_template().n_vertices, 3)
+    assert json.loads((tmp_path / "r.json").read_text())["neutral_expression_removed"] is not None
+    assert np.isfinite(neu).all() and np.median(np.linalg.norm(neu - reg, axis=1)) < 5.0

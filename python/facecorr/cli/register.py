@@ -19,6 +19,8 @@ def add_commands(sub) -> None:
     p.add_argument("--json", help="also write landmarks, expression weights, MHD, timings as JSON")
     p.add_argument("--landmarks", help="JSON of the 8 landmarks (as `facecorr landmarks` writes) to use instead of predicting")
     p.add_argument("--png", help="also write a picture: scan beside the registered template coloured by distance")
+    p.add_argument("--neutral", metavar="OUT_NEUTRAL", help="also write the expression-removed shape (the registered "
+                   "template with the fitted expression taken away; same vertex order, scan's frame and units)")
     p.add_argument("--units", default="auto", choices=["auto", "mm", "cm", "m"], help="the scan's units (default: infer)")
     p.add_argument("--landmark-set", metavar="FILE", help="JSON of your own points on the template ({name: vertex id or "
                    "{\"face\": id, \"bary\": [b0, b1, b2]}}), read off the result into the JSON's point_set")
@@ -64,7 +66,7 @@ def cmd_register(args) -> int:
     from ..pipeline.batch import register_file
 
     result = register_file(args.scan, args.output, args.json, args.png, args.units, args.landmarks,
-                           point_set=args.landmark_set)
+                           point_set=args.landmark_set, neutral=args.neutral)
     print(f"{args.output}: MHD {result.mhd:.3f} mm, {result.timings_s['total']:.2f} s"
           + (f"; warnings: {'; '.join(result.flags)}" if result.flags else ""))
     return 0

@@ -56,7 +56,7 @@ def read_landmarks_json(path, mesh) -> dict:
     return out
 
 
-def check_register_outputs(scan_path, out_mesh, out_json=None, png=None) -> None:
+def check_register_outputs(scan_path, out_mesh, out_json=None, png=None, neutral=None) -> None:
     """Refuse, before any work, outputs that cannot be written (OutputError / MeshFileError naming
     the path): an unknown mesh extension, an output naming the scan or another output, a folder,
     a parent that is a file, a folder without write permission."""
@@ -65,8 +65,11 @@ def check_register_outputs(scan_path, out_mesh, out_json=None, png=None) -> None
     from ..io.load import format_of
 
     outputs = [("-o", out_mesh)] + ([("--json", out_json)] if out_json else []) + ([("--png", png)] if png else [])
+    outputs += [("--neutral", neutral)] if neutral else []
     check_output_paths(outputs, inputs=[scan_path])
     format_of(Path(out_mesh))
+    if neutral:
+        format_of(Path(neutral))
     if png is not None and Path(png).suffix.lower() not in _PICTURE_SUFFIXES:
         raise OutputError(f"{png}: unknown picture format {Path(png).suffix or '(no extension)'!r} "
                           f"(supported: {', '.join(_PICTURE_SUFFIXES)})")
@@ -77,14 +80,15 @@ _PICTURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
 def register_file(scan_path, out_mesh, out_json=None, png=None, units="auto", landmarks_json=None, point_set=None,
-                  picture="registration", model=None):
+                  picture="registration", model=None, neutral=None):
     """Load, register and write one scan. Returns the Result (raises FacecorrError on bad input).
 
     ``point_set``: a point-set JSON on the template (:mod:`facecorr.template.point_sets`), read off
     the result into its JSON's ``point_set``; ``picture``: what ``png`` shows (see
-    :func:`save_registration`); ``model``: as in :func:`register_scan`. The outputs are checked
+    :func:`save_registration`); ``model``: as in :func:`register_scan`; ``neutral``: a mesh path for
+    the expression-removed shape (:attr:`Result.neutral_vertices`). The outputs are checked
     before the work and written as a group: all of them or none."""
-    check_register_outputs(scan_path, out_mesh, out_json, png)
+    check_register_outputs(scan_path, out_mesh, out_json, png, neutral)
     points = None
     if point_set is not None:
         from ..template import load_template
@@ -93,7 +97,7 @@ def register_file(scan_path, out_mesh, out_json=None, png=None, units="auto", la
         points = read_point_set(point_set, load_template())
     mesh, result = register_scan(scan_path, units=units, landmarks_json=landmarks_json, points=points, model=model)
     save_registration(mesh, result, out_mesh, out_json, png, title=Path(scan_path).name, inputs=[scan_path],
-                      picture=picture)
+                      picture=picture, neutral=neutral)
     return result
 
 
@@ -114,7 +118,7 @@ def register_scan(scan_path, *, units="auto", landmarks_json=None, points=None, 
 
 
 def save_registration(mesh, result, out_mesh, out_json=None, png=None, *, title, inputs=(),
-                      picture="registration") -> None:
+                      picture="registration", neutral=None) -> None:
     """Write a registration's files as a group (all or none): the mesh, the JSON, the picture
     (titled ``title``, the scan's file name). The one writer of ``register``, the local batch and
     the Dask workers, so all three write the same bytes. ``picture``: what ``png`` shows,
@@ -136,7 +140,7 @@ def save_registration(mesh, result, out_mesh, out_json=None, png=None, *, title,
             landmarks=np.array([result.landmarks[n] for n in LANDMARK_NAMES])))))
     elif png:
         also.append((png, lambda tmp: plot_registration(mesh, result, tmp, load_template(), title=title)))
-    result.save(out_mesh, out_json, also=also, inputs=inputs)
+    result.save(out_mesh, out_json, neutral_path=neutral, also=also, inputs=inputs)
 
 
 def packaged_model():
