@@ -119,7 +119,7 @@ def test_rust_defaults_agree_with_the_dataclass():
 def test_binding_has_no_defaults():
     v, f = grid(4, 4, 1.0, lambda x, y: 0 * x)
     scan = Mesh(v, f)
-    args = (v, f, scan.vertices, scan.vertex_normals, scan.is_boundary, np.zeros(0, np.int64), np.zeros((0, 3)))
+    args = (v, f, scan.surface, np.zeros(0, np.int64), np.zeros((0, 3)))
     kw = dict(asdict(ShapeFitOptions()), template_weight=None)
     for name in kw:
         with pytest.raises(TypeError, match=name):

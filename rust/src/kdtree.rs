@@ -51,7 +51,7 @@ impl KdTree3 {
 
     /// The `k` nearest neighbours of one query with distance `< upper_bound` (strict, as scipy),
     /// written into `dist[..k]` / `idx[..k]` (padding: `inf` / `n`).
-    fn knn_one(&self, q: &[f64; 3], k: usize, upper_bound: f64, dist: &mut [f64], idx: &mut [u64]) {
+    pub(crate) fn knn_one(&self, q: &[f64; 3], k: usize, upper_bound: f64, dist: &mut [f64], idx: &mut [u64]) {
         let n = self.points.len();
         dist.fill(f64::INFINITY);
         idx.fill(n as u64);

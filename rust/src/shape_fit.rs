@@ -9,11 +9,17 @@
 //! with L-BFGS ([`crate::lbfgs`]) and an analytic gradient evaluated per vertex in parallel.
 //!
 //! Choices where the paper is vague (measured in BENCHMARKS.md, "Registration (issue 5)"):
-//! * **Correspondences** w_i = 1 iff the angle between the deformed template's normal at i and
-//!   the scan normal at q_i is at most `normal_angle_deg` (80°), q_i is not a scan boundary vertex
-//!   (the match is *dropped*, not moved to the nearest interior vertex: a template part beyond
-//!   the scan's crop then just follows the smoothness term instead of piling up at the rim), and
-//!   ‖q_i − p̃_i‖ ≤ `max_distance`. The KD-tree over all scan vertices is built once.
+//! * **Correspondences.** q_i is the closest point of the scan's *surface* to p̃_i (among the
+//!   triangles around its `surface_k` nearest vertices, then a walk to the closest one;
+//!   [`crate::surface`]), n_i the scan's vertex normals interpolated there; `surface_k` = 0 is
+//!   the paper's nearest scan vertex. The weight w_i ∈ [0, 1] is the paper's three tests made
+//!   ramps ([`match_weight`]): the angle between the deformed template's normal at i and n_i
+//!   against `normal_angle_deg` (80°) ± `angle_band_deg`, the distance against `max_distance`
+//!   (a `distance_band` wide ramp below it), and × (1 − the boundary share at q_i) (a match on a
+//!   scan boundary edge is *dropped*, not moved inwards: a template part beyond the scan's crop
+//!   then just follows the smoothness term instead of piling up at the rim). Why ramps and
+//!   surface points: with nearest vertices and hard tests a 5e-6 mm change of the scan moved
+//!   the result by up to 1.5 mm (issue 13, #15). Bands of 0 and `surface_k` = 0 are the paper.
 //! * **Outer / inner loop.** Weight level ℓ = 0, 1, …, `n_levels`−1 uses
 //!   ω_smooth = ω_smooth⁰·0.5^ℓ and ω_rigid = ω_rigid⁰·0.5^ℓ. Within a level we alternate
 //!   (ICP): re-find nearest neighbours and template normals for the current p̃, then run L-BFGS
@@ -33,11 +39,13 @@
 //! * **Schedule defaults** (8 levels, memory 5, tolerances 1e-3 / 1e-2) were measured against the
 //!   paper-literal run (12 levels, 1e-4): same accuracy, about half the work (BENCHMARKS.md).
 
+use std::sync::Arc;
+
 use rayon::prelude::*;
 
-use crate::kdtree::KdTree3;
 use crate::lbfgs::{self, LbfgsOptions};
 use crate::mesh::vertex_normals;
+use crate::surface::{match_weight, Surface};
 use crate::vec3::{add, dot, sub};
 
 /// Options of [`fit`]: the paper's weights and the measured schedule (see module docs).
@@ -71,6 +79,13 @@ pub struct ShapeFitOptions {
     pub max_distance: f64,
     /// Drop matches whose nearest scan vertex is on the scan's boundary (the paper: true).
     pub reject_boundary: bool,
+    /// Matches: 0 = the nearest scan vertex (the paper); k ≥ 1 = the closest point on the scan's
+    /// surface among the triangles around the k nearest vertices ([`crate::surface`]).
+    pub surface_k: usize,
+    /// Width of the normal test's ramp (degrees either side of `normal_angle_deg`; 0 = a step).
+    pub angle_band_deg: f64,
+    /// Width of the distance cap's ramp (mm below `max_distance`; 0 = a step).
+    pub distance_band: f64,
     /// Weight of the landmark term (0 = the paper; it is constant over the levels).
     pub w_landmark: f64,
     /// Per template vertex multiplier of the data weight (empty = all 1). Used to switch the
@@ -97,6 +112,9 @@ impl Default for ShapeFitOptions {
             normal_angle_deg: 80.0,
             max_distance: 5.0,
             reject_boundary: true,
+            surface_k: 3,
+            angle_band_deg: 10.0,
+            distance_band: 1.0,
             w_landmark: 0.0,
             template_weight: Vec::new(),
             precondition: true,
@@ -308,51 +326,52 @@ pub fn energy_gradient(
     EnergyParts { total, data: parts[0], smooth: parts[1], rigid: parts[2], landmark: parts[3] }
 }
 
-/// The scan side of the fit: its vertices in a KD-tree (built once), unit normals, boundary flags.
+/// The scan side of the fit: its surface (vertices in a KD-tree, triangles, unit normals,
+/// boundary flags), built once.
 pub struct ScanTarget {
-    tree: KdTree3,
-    pub normals: Vec<[f64; 3]>,
-    pub is_boundary: Vec<bool>,
+    surface: Arc<Surface>,
+    /// Added to queries (the fit works in the template-centred frame, the surface in its own).
+    offset: [f64; 3],
 }
 
 impl ScanTarget {
-    pub fn new(points: Vec<[f64; 3]>, normals: Vec<[f64; 3]>, is_boundary: Vec<bool>) -> Self {
+    pub fn new(points: Vec<[f64; 3]>, faces: Vec<[usize; 3]>, normals: Vec<[f64; 3]>, is_boundary: Vec<bool>) -> Self {
         assert!(!points.is_empty(), "scan has no vertices");
-        assert!(points.len() == normals.len() && points.len() == is_boundary.len(), "scan arrays differ in length");
-        let tree = KdTree3::new(points).expect("KD-tree construction failed");
-        Self { tree, normals, is_boundary }
+        let surface = Surface::new(points, faces, normals, &is_boundary).expect("scan surface construction failed");
+        Self::from_surface(Arc::new(surface))
+    }
+
+    /// A target over an already built surface (shared, e.g. the scan's cached `Surface`).
+    pub fn from_surface(surface: Arc<Surface>) -> Self {
+        Self { surface, offset: [0.0; 3] }
     }
 
     /// The scan vertices (the KD-tree's points).
     pub fn points(&self) -> &[[f64; 3]] {
-        self.tree.points()
+        self.surface.points()
     }
 
-    /// Nearest scan vertex of every query point: (index, distance).
-    pub fn nearest(&self, queries: &[[f64; 3]]) -> Vec<(usize, f64)> {
-        queries
-            .par_iter()
-            .with_min_len(256)
-            .map(|q| self.tree.nearest(q))
-            .collect()
-    }
-
-    /// Correspondences of the deformed template `deformed` with unit normals `normals`
-    /// (weight 1 if valid, 0 otherwise; see the module docs for the tests applied).
+    /// Correspondences of the deformed template `deformed` with unit normals `normals`: the
+    /// closest surface point (or nearest vertex, `surface_k` = 0) and its continuous weight
+    /// ([`match_weight`]; see the module docs for the tests applied).
     pub fn correspond(&self, deformed: &[[f64; 3]], normals: &[[f64; 3]], opts: &ShapeFitOptions) -> Correspondences {
-        let cos_max = opts.normal_angle_deg.to_radians().cos();
-        let nn = self.nearest(deformed);
-        let mut c = Correspondences { target: Vec::with_capacity(nn.len()), normal: Vec::with_capacity(nn.len()), weight: Vec::with_capacity(nn.len()), anchor: Vec::new() };
-        for (i, &(j, d)) in nn.iter().enumerate() {
-            let (q, m, np) = (self.points()[j], self.normals[j], normals[i]);
-            let cosang = dot(m, np);
-            let ok = cosang >= cos_max && !(opts.reject_boundary && self.is_boundary[j]) && d <= opts.max_distance;
-            c.target.push(q);
-            c.normal.push(m);
+        let queries: Vec<[f64; 3]> = deformed.iter().map(|&p| add(p, self.offset)).collect();
+        let sp = self.surface.closest_all(&queries, opts.surface_k);
+        let mut c = Correspondences { target: Vec::with_capacity(sp.len()), normal: Vec::with_capacity(sp.len()), weight: Vec::with_capacity(sp.len()), anchor: Vec::new() };
+        for (i, m) in sp.iter().enumerate() {
+            let wm = match_weight(dot(m.normal, normals[i]), m.dist, m.boundary, opts.normal_angle_deg, opts.angle_band_deg,
+                                  opts.max_distance, opts.distance_band, opts.reject_boundary);
+            c.target.push(sub(m.point, self.offset));
+            c.normal.push(m.normal);
             let tw = opts.template_weight.get(i).copied().unwrap_or(1.0);
-            c.weight.push(if ok { tw } else { 0.0 });
+            c.weight.push(tw * wm);
         }
         c
+    }
+
+    /// The same target seen from a frame moved by −`c` (the fit's template-centred frame).
+    fn shifted(&self, c: [f64; 3]) -> Self {
+        Self { surface: self.surface.clone(), offset: add(self.offset, c) }
     }
 }
 
@@ -487,11 +506,7 @@ pub fn fit(
         }
     }
     let pts: Vec<[f64; 3]> = vertices.iter().map(|&v| sub(v, c)).collect();
-    let shifted = ScanTarget::new(
-        scan.points().iter().map(|&p| sub(p, c)).collect(),
-        scan.normals.clone(),
-        scan.is_boundary.clone(),
-    );
+    let shifted = scan.shifted(c);
     let adj = Adjacency::from_faces(n, faces);
     let mut x: Vec<f64> = (0..n).flat_map(|_| IDENTITY).collect();
     // buffers reused by every solve (fresh ~0.5 MB vectors per solve cost a page fault per 4 KiB)
@@ -651,7 +666,7 @@ mod tests {
             let (i, j) = (k % 61, k / 61);
             i == 0 || j == 0 || i == 60 || j == 60
         }).collect();
-        let scan = ScanTarget::new(sv, sn, bnd);
+        let scan = ScanTarget::new(sv, sf, sn, bnd);
         let anchors: Vec<(usize, [f64; 3])> = [10 * 21 + 10, 5 * 21 + 5, 5 * 21 + 15, 15 * 21 + 5, 15 * 21 + 15].iter().map(|&i| (i, roll(tv[i]))).collect();
         // Point-to-plane leaves tangential sliding free on the flat parts; five anchors (like the
         // landmarks the pipeline has) pin it. Without them the mean error is ~5 mm here.

@@ -201,3 +201,37 @@ def closest_points(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray,
     """Closest point of a triangle mesh to each query point: :meth:`TriangleSet.closest` on a
     set built for this call (build one and reuse it for repeated queries, as ``Mesh.triangle_set``)."""
     return TriangleSet(vertices, faces, tree=tree, adjacency=adjacency).closest(queries, k=k)
+
+
+def smoothstep(lo, hi, x):
+    """0 below ``lo``, 1 above ``hi``, 3t² − 2t³ between (C¹); a step at ``hi`` when lo == hi.
+    Broadcasts; the same function as the Rust core's ``surface::smoothstep``."""
+    lo, hi, x = np.broadcast_arrays(np.asarray(lo, float), np.asarray(hi, float), np.asarray(x, float))
+    span = hi - lo
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip(np.where(span > 0, (x - lo) / np.where(span > 0, span, 1.0), 0.0), 0.0, 1.0)
+    return np.where(span > 0, t * t * (3.0 - 2.0 * t), (x >= hi).astype(float))
+
+
+def match_weights(cos_angle, dist, boundary, max_angle_deg, angle_band_deg, max_distance, distance_band,
+                  reject_boundary=True) -> np.ndarray:
+    """Continuous weight in [0, 1] of each match (the Rust core's ``surface::match_weight``).
+
+    1 well inside the three tests, 0 outside, a smooth ramp across each band: the normal angle
+    (``cos_angle`` against ``max_angle_deg`` ± ``angle_band_deg``; may be per match), the
+    distance (mm, from ``max_distance − distance_band`` to ``max_distance``) and, if
+    ``reject_boundary``, the interpolated boundary share b ∈ [0, 1] (× (1 − b)). Bands of 0 give
+    the hard tests. Why ramps: a hard test flips a match on or off for an arbitrarily small move,
+    and the fits using it then jump (issue 13, #15).
+    """
+    a = np.asarray(max_angle_deg, dtype=np.float64)
+    hi = np.cos(np.radians(np.maximum(a - angle_band_deg, 0.0)))
+    lo = np.cos(np.radians(np.minimum(a + angle_band_deg, 180.0)))
+    w = smoothstep(lo, hi, cos_angle)
+    if np.isfinite(max_distance):
+        w = w * (1.0 - smoothstep(max_distance - distance_band, max_distance, dist))
+    if reject_boundary:
+        b = np.asarray(boundary, dtype=np.float64)
+        # (a share within rounding of 1, e.g. a point on a boundary edge, counts as 1)
+        w = w * np.where(b >= 1.0 - 1e-12, 0.0, np.clip(1.0 - b, 0.0, 1.0))
+    return w

@@ -285,6 +285,15 @@ class Mesh:
         return KDTree(self.vertices)
 
     @cached_property
+    def surface(self):
+        """``facecorr._core.Surface``: the triangles prepared for closest-point queries in Rust
+        (``surface.closest(points (Q, 3), k)`` -> face, bary, point, dist, normal, boundary share),
+        with the vertex normals and boundary flags interpolated; built on first use."""
+        return _core.Surface(self.vertices, np.ascontiguousarray(self.faces, dtype=np.int64),
+                             np.ascontiguousarray(self.vertex_normals, dtype=np.float64),
+                             np.ascontiguousarray(self.is_boundary, dtype=bool))
+
+    @cached_property
     def triangle_set(self):
         """:class:`facecorr.geometry.closest.TriangleSet` of the triangles (closest-point queries;
         built on first use, with the KD-tree)."""

@@ -15,9 +15,16 @@ agree to 1e-6 (tests); the default exists because scipy's L-BFGS-B calls into mu
 OpenBLAS for its 14 unknowns: on our 2 shared cores one call took 0.27 s with 2 BLAS threads vs
 2 ms with 1 (measured, 20 repetitions), i.e. 4.4 s vs 0.33 s for a whole expression fit.
 
+Matches (beyond the paper, which takes the nearest scan vertex NN(p_r) and hard tests): the
+closest point of the scan's surface, with the scan's normal interpolated there, and each test a
+ramp rather than a step (``surface_k``, ``angle_band_deg``, ``distance_band``;
+:func:`facecorr.geometry.closest.match_weights`), so that the fit moves continuously with its
+input (issue 13, #15: nearest vertices and hard tests moved results by up to 1.5 mm for a 5e-6 mm
+change of the scan). ``surface_k=0, angle_band_deg=0, distance_band=0`` is the paper's matching.
+
 Weights ω_r (the paper's two-stage schedule). A match is *valid* if the angle between the normals
 of p_r(α) and of its nearest scan vertex is at most φ (upper face) or φ/2 (chin, mouth); invalid
-matches get weight 0. Stage 1: ω_upper = 1, ω_chin = 1 − V_chin^valid / V_chin, ω_mouth = 0.
+matches get weight 0 (the valid shares below are the sums of the ramped weights). Stage 1: ω_upper = 1, ω_chin = 1 − V_chin^valid / V_chin, ω_mouth = 0.
 Stage 2 starts once ≥ 80 % of the chin vertices are valid: ω_mouth = 1 − V_mouth^valid / V_mouth.
 The fit stops once ≥ 60 % of the mouth vertices are valid (in stage 2), when α stops changing in
 stage 2, or after ``max_rounds`` rounds. The paper does not say what happens when a share is
@@ -55,6 +62,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry.closest import match_weights
 from ..geometry.mesh import Mesh, vertex_normals
 from ..geometry.transforms import rotation_angle, rotation_from_vector
 from ..options import resolve
@@ -115,6 +123,13 @@ class ExpressionOptions:
     energy_window: int = 3
     max_distance: float = 10.0        # matches farther than this are dropped (inf = the paper)
     reject_boundary: bool = True      # scan boundary vertices are never matches
+    # Matches are closest points on the scan's surface (around the ``surface_k`` nearest vertices;
+    # 0 = the nearest vertex, the paper), and the normal, distance and boundary tests are ramps
+    # (± ``angle_band_deg``, ``distance_band`` mm below the cap, × (1 − boundary share)), so a
+    # tiny change of the input changes the fit a little (issue 13, #15; `geometry.closest`).
+    surface_k: int = 3
+    angle_band_deg: float = 10.0
+    distance_band: float = 1.0
     lip_rim_rings: int = 1            # no data on the inner lip rim + this many rings (-1 = keep)
     weights: str = "uniform"          # "uniform" or "paper" (the two-stage region schedule)
     solver: str = "newton"            # "newton" (projected, active set) or "lbfgsb" (scipy)
@@ -332,10 +347,8 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
     k = basis.k
     regions = np.asarray(template.regions)
     upper, chin, mouth = (regions == 0), (regions == 1), (regions == 2)
-    cos_full = np.cos(np.radians(o.phi_deg))
-    cos_half = np.cos(np.radians(o.phi_deg / 2.0))
-    cos_req = np.where(upper, cos_full, cos_half)
-    tree, scan_n, scan_b = scan.kdtree, scan.vertex_normals, scan.is_boundary
+    angle_req = np.where(upper, o.phi_deg, o.phi_deg / 2.0)
+    surface = scan.surface
     keep = np.ones(template.n_vertices, dtype=bool)
     if o.lip_rim_rings >= 0:
         keep &= ~rim_mask(template, o.lip_rim_rings)
@@ -359,14 +372,13 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
         lin = T[:, :3]
         p = base + basis.offsets(alpha) @ lin.T
         pn = vertex_normals(p, faces)
-        dist, idx = tree.query(p, k=1)
-        idx = np.asarray(idx, dtype=np.int64)
-        q, qn = scan.vertices[idx], scan_n[idx]
-        valid = (np.einsum("ij,ij->i", pn, qn) >= cos_req) & (np.asarray(dist) <= o.max_distance) & keep
-        if o.reject_boundary:
-            valid &= ~scan_b[idx]
-        f_chin = float(valid[chin].mean()) if chin.any() else 1.0
-        f_mouth = float(valid[mouth].mean()) if mouth.any() else 1.0
+        _, _, q, dist, qn, b_share = surface.closest(p, int(o.surface_k))
+        w_match = match_weights(np.einsum("ij,ij->i", pn, qn), dist, b_share, angle_req, o.angle_band_deg,
+                                o.max_distance, o.distance_band, o.reject_boundary) * keep
+        valid = w_match > 0.0
+        # shares of valid matches (weighted: continuous in the input)
+        f_chin = float(w_match[chin].mean()) if chin.any() else 1.0
+        f_mouth = float(w_match[mouth].mean()) if mouth.any() else 1.0
         if o.weights == "paper":
             if stage == 1 and (f_chin >= o.chin_start or stage_rounds >= o.max_stage_rounds):
                 stage, stage_rounds, prev_step = 2, 0, np.inf
@@ -380,7 +392,7 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
         else:
             w_region = np.ones(3)
         # only valid matches on the sample count
-        w_vert = np.where(valid & sample, w_region[regions], 0.0)
+        w_vert = np.where(sample, w_region[regions] * w_match, 0.0)
         ctr = p.mean(axis=0)
         lam = float(o.point_to_point)
         h, g, const = _normal_equations(basis, gram, lin, w_vert, q - base, qn, p - ctr, lam,

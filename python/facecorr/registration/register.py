@@ -242,7 +242,7 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
     timings["affine"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    mesh.kdtree, mesh.vertex_normals, mesh.is_boundary  # built once here, shared by every stage
+    mesh.kdtree, mesh.surface  # built once here (with the normals and boundary), shared by every stage
     timings["scan_geometry"] = time.perf_counter() - t0
 
     k = template.n_blendshapes

@@ -45,6 +45,13 @@ class ShapeFitOptions:
     # where the smoothness puts them, inside the holes, instead of on the nearest skin.
     max_distance: float = 5.0
     reject_boundary: bool = True    # scan boundary vertices are never matches (hair, ears, holes' rims)
+    # Matches are the closest points on the scan's surface (among the triangles around the
+    # ``surface_k`` nearest vertices; 0 = the nearest vertex, the paper), and the three tests
+    # above are ramps, not steps (± ``angle_band_deg`` about the angle, ``distance_band`` mm below
+    # the cap, × (1 − boundary share)): the fit is then continuous in its input (issue 13, #15).
+    surface_k: int = 3
+    angle_band_deg: float = 10.0
+    distance_band: float = 1.0
     w_landmark: float = 0.0         # ω of the landmark term (the paper: none)
     precondition: bool = True       # diagonal preconditioner of the L-BFGS
 
@@ -99,6 +106,5 @@ def fit_shape(vertices, faces, scan: Mesh, anchors=None, template_weight=None,
     tw = None if template_weight is None else np.ascontiguousarray(template_weight, dtype=np.float64)
     t0 = time.perf_counter()
     out_v, out_t, solves = _core.shape_fit(
-        v, f, scan.vertices, np.ascontiguousarray(scan.vertex_normals, dtype=np.float64),
-        np.ascontiguousarray(scan.is_boundary, dtype=bool), ids, pts, template_weight=tw, **asdict(opts))
+        v, f, scan.surface, ids, pts, template_weight=tw, **asdict(opts))
     return ShapeFit(vertices=out_v, transforms=out_t, solves=list(solves), seconds=time.perf_counter() - t0)

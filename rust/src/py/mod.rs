@@ -8,6 +8,7 @@ use pyo3::prelude::*;
 mod util;
 mod mesh;
 mod kdtree;
+mod surface;
 mod geodesic;
 mod fingerprint;
 mod curvature;
@@ -21,6 +22,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(util::n_threads, m)?)?;
     mesh::register(m)?;
     kdtree::register(m)?;
+    surface::register(m)?;
     geodesic::register(m)?;
     fingerprint::register(m)?;
     curvature::register(m)?;

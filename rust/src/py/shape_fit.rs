@@ -5,6 +5,7 @@ use numpy::{IntoPyArray, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2}
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use super::surface::Surface;
 use super::util::{ids, index_rows, points3, run, value_err};
 use crate::shape_fit::{self as core_fit, Adjacency, Correspondences, ScanTarget, ShapeFitOptions, Weights};
 
@@ -84,22 +85,22 @@ fn shape_fit_energy<'py>(
     Ok((parts.total, parts.data, parts.smooth, parts.rigid, parts.landmark, g))
 }
 
-/// The shape fit of §4.3. Returns (vertices (N, 3), transforms (N, 3, 4), solves: list of dicts).
+/// The shape fit of §4.3 onto `scan` (a `Surface`, e.g. the scan mesh's cached one). Returns (vertices (N, 3), transforms (N, 3, 4), solves: list of dicts).
 /// Every option is a required keyword (`template_weight` may be None): the defaults live in one
 /// place, the Python dataclass `facecorr.registration.shape.ShapeFitOptions`.
 #[pyfunction]
-#[pyo3(signature = (template_vertices, template_faces, scan_vertices, scan_normals, scan_is_boundary,
+#[pyo3(signature = (template_vertices, template_faces, scan,
     anchor_ids, anchor_points, *, w_data, w_smooth, w_rigid, relax_factor, n_levels, max_icp, relax_tol,
-    max_iter, rel_tol, memory, normal_angle_deg, max_distance, reject_boundary, w_landmark, template_weight,
-    precondition))]
+    max_iter, rel_tol, memory, normal_angle_deg, max_distance, reject_boundary, surface_k, angle_band_deg,
+    distance_band, w_landmark, template_weight, precondition))]
 #[allow(clippy::too_many_arguments)]
 fn shape_fit<'py>(
     py: Python<'py>, template_vertices: PyReadonlyArray2<'py, f64>, template_faces: PyReadonlyArray2<'py, i64>,
-    scan_vertices: PyReadonlyArray2<'py, f64>, scan_normals: PyReadonlyArray2<'py, f64>, scan_is_boundary: PyReadonlyArray1<'py, bool>,
+    scan: PyRef<'py, Surface>,
     anchor_ids: PyReadonlyArray1<'py, i64>, anchor_points: PyReadonlyArray2<'py, f64>,
     w_data: f64, w_smooth: f64, w_rigid: f64, relax_factor: f64, n_levels: usize, max_icp: usize, relax_tol: f64,
     max_iter: usize, rel_tol: f64, memory: usize, normal_angle_deg: f64, max_distance: f64, reject_boundary: bool,
-    w_landmark: f64, template_weight: Option<PyReadonlyArray1<'py, f64>>, precondition: bool,
+    surface_k: usize, angle_band_deg: f64, distance_band: f64, w_landmark: f64, template_weight: Option<PyReadonlyArray1<'py, f64>>, precondition: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>, Vec<Bound<'py, PyDict>>)> {
     let tv = points3(&template_vertices, "template_vertices")?;
     let n = tv.len();
@@ -110,15 +111,7 @@ fn shape_fit<'py>(
     if tf.is_empty() {
         return Err(value_err("template_faces is empty"));
     }
-    let sv = points3(&scan_vertices, "scan_vertices")?;
-    if sv.is_empty() {
-        return Err(value_err("scan_vertices is empty"));
-    }
-    let sn = points3(&scan_normals, "scan_normals")?;
-    let sb: Vec<bool> = scan_is_boundary.as_array().to_vec();
-    if sn.len() != sv.len() || sb.len() != sv.len() {
-        return Err(value_err(format!("scan_normals and scan_is_boundary must have {} rows", sv.len())));
-    }
+    let surface = scan.inner.clone();
     let anch = anchors(&anchor_ids, &anchor_points, n)?;
     if !(relax_factor > 0.0 && relax_factor <= 1.0) {
         return Err(value_err(format!("relax_factor must be in (0, 1], got {relax_factor}")));
@@ -161,10 +154,13 @@ fn shape_fit<'py>(
         normal_angle_deg,
         max_distance,
         reject_boundary,
+        surface_k: surface_k.min(16),
+        angle_band_deg: nonneg(angle_band_deg, "angle_band_deg")?,
+        distance_band: nonneg(distance_band, "distance_band")?,
         w_landmark: nonneg(w_landmark, "w_landmark")?,
     };
     let res = run(py, "shape_fit", move || {
-        let scan = ScanTarget::new(sv, sn, sb);
+        let scan = ScanTarget::from_surface(surface);
         core_fit::fit(&tv, &tf, &scan, &anch, &opts)
     })?;
     let verts = Array2::from_shape_vec((n, 3), res.vertices.iter().flatten().copied().collect()).expect("shape").into_pyarray(py);
@@ -186,7 +182,7 @@ fn shape_fit_default_options(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let o = ShapeFitOptions::default();
     let d = PyDict::new(py);
     set_fields!(d, o; w_data, w_smooth, w_rigid, relax_factor, n_levels, max_icp, relax_tol, max_iter, rel_tol, memory,
-        normal_angle_deg, max_distance, reject_boundary, w_landmark, precondition);
+        normal_angle_deg, max_distance, reject_boundary, surface_k, angle_band_deg, distance_band, w_landmark, precondition);
     Ok(d)
 }
 

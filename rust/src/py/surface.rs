@@ -1,0 +1,75 @@
+//! Bindings of `crate::surface`: the `Surface` class (closest points on a triangle mesh; wrapped
+//! by `facecorr.geometry.mesh.Mesh.surface`).
+
+use std::sync::Arc;
+
+use numpy::ndarray::{Array1, Array2};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::prelude::*;
+
+use super::util::{index_rows, points3, run, value_err};
+use crate::surface::Surface as CoreSurface;
+
+/// A triangle mesh prepared for closest-point queries: vertices (N, 3) mm, faces (M, 3),
+/// unit vertex normals (N, 3), boundary flags (N,).
+#[pyclass(frozen, module = "facecorr._core")]
+pub struct Surface {
+    pub(crate) inner: Arc<CoreSurface>,
+}
+
+#[pymethods]
+impl Surface {
+    #[new]
+    fn new(
+        py: Python<'_>, vertices: PyReadonlyArray2<'_, f64>, faces: PyReadonlyArray2<'_, i64>,
+        normals: PyReadonlyArray2<'_, f64>, is_boundary: PyReadonlyArray1<'_, bool>,
+    ) -> PyResult<Self> {
+        let v = points3(&vertices, "vertices")?;
+        let f = index_rows::<3>(&faces, v.len(), "faces")?;
+        let n = points3(&normals, "normals")?;
+        let b: Vec<bool> = is_boundary.as_array().to_vec();
+        let s = run(py, "Surface", move || CoreSurface::new(v, f, n, &b))?.map_err(value_err)?;
+        Ok(Self { inner: Arc::new(s) })
+    }
+
+    #[getter]
+    fn n_vertices(&self) -> usize {
+        self.inner.points().len()
+    }
+
+    /// Closest surface point of each query (Q, 3) among the triangles around its `k` nearest
+    /// vertices (`k` = 0: the nearest vertex). Returns (face (Q,) int64, -1 for a vertex match;
+    /// bary (Q, 3); point (Q, 3); dist (Q,); normal (Q, 3) interpolated unit normal; boundary (Q,)
+    /// interpolated boundary share in [0, 1]).
+    #[allow(clippy::type_complexity)]
+    fn closest<'py>(
+        &self, py: Python<'py>, q: PyReadonlyArray2<'py, f64>, k: usize,
+    ) -> PyResult<(
+        Bound<'py, PyArray1<i64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>,
+        Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>,
+    )> {
+        if k > 16 {
+            return Err(value_err(format!("k must be <= 16, got {k}")));
+        }
+        let qs = points3(&q, "query points")?;
+        let nq = qs.len();
+        let s = self.inner.clone();
+        let sp = run(py, "Surface.closest", move || s.closest_all(&qs, k))?;
+        let face: Vec<i64> = sp.iter().map(|p| if p.face == usize::MAX { -1 } else { p.face as i64 }).collect();
+        let flat = |f: &dyn Fn(&crate::surface::SurfacePoint) -> [f64; 3]| -> Array2<f64> {
+            Array2::from_shape_vec((nq, 3), sp.iter().flat_map(f).collect()).expect("shape")
+        };
+        let bary = flat(&|p| p.bary);
+        let point = flat(&|p| p.point);
+        let normal = flat(&|p| p.normal);
+        let dist = Array1::from_vec(sp.iter().map(|p| p.dist).collect());
+        let bnd = Array1::from_vec(sp.iter().map(|p| p.boundary).collect());
+        Ok((Array1::from_vec(face).into_pyarray(py), bary.into_pyarray(py), point.into_pyarray(py), dist.into_pyarray(py),
+            normal.into_pyarray(py), bnd.into_pyarray(py)))
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Surface>()?;
+    Ok(())
+}
