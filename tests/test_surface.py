@@ -35,12 +35,13 @@ def brute_force(v, f, q):
     return best, bary.reshape(len(q), len(f), 3)[np.arange(len(q)), best], d.min(axis=1)
 
 
-def test_closest_points_match_every_triangle():
+@pytest.mark.parametrize("k", [1, 3])
+def test_closest_points_match_every_triangle(k):
     v, f = bumpy_grid()
     mesh = Mesh(v, f)
     rng = np.random.default_rng(1)
     q = np.column_stack([rng.uniform(3, 20, 400), rng.uniform(3, 20, 400), rng.uniform(-5, 5, 400)])
-    face, bary, point, dist, normal, bshare = mesh.surface.closest(q, 3)
+    face, bary, point, dist, normal, bshare = mesh.surface.closest(q, k)
     _, _, d_ref = brute_force(v, f, q)
     np.testing.assert_allclose(dist, d_ref, atol=1e-9)
     # the point is the barycentric combination and lies at that distance

@@ -167,59 +167,56 @@ impl Surface {
         let mut idx = [0u64; 16];
         self.tree.knn_one(q, k, f64::INFINITY, &mut dist[..k], &mut idx[..k]);
         let pts = self.points();
+        // triangles tested so far (a few dozen): each is tested once
+        let mut tested = [0u32; 96];
+        let mut n_tested = 0usize;
         let mut best: Option<(f64, usize, [f64; 3], Vec3)> = None;
+        let mut visit = |fi: usize, best: &mut Option<(f64, usize, [f64; 3], Vec3)>| -> bool {
+            if tested[..n_tested].contains(&(fi as u32)) {
+                return false;
+            }
+            if n_tested < tested.len() {
+                tested[n_tested] = fi as u32;
+                n_tested += 1;
+            }
+            let f = self.faces[fi];
+            let bc = closest_on_triangle(*q, pts[f[0]], pts[f[1]], pts[f[2]]);
+            let p = add(add(scale(pts[f[0]], bc[0]), scale(pts[f[1]], bc[1])), scale(pts[f[2]], bc[2]));
+            let d = dot(sub(*q, p), sub(*q, p));
+            let better = match *best {
+                None => true,
+                Some((bd, bf, _, _)) => d < bd || (d == bd && fi < bf),
+            };
+            if better {
+                *best = Some((d, fi, bc, p));
+            }
+            better
+        };
         for &vi in &idx[..k] {
             let vi = vi as usize;
             if vi >= pts.len() {
                 continue;
             }
             for &fi in &self.vf_faces[self.vf_offsets[vi]..self.vf_offsets[vi + 1]] {
-                let fi = fi as usize;
-                if let Some((_, bf, _, _)) = best {
-                    if bf == fi {
-                        continue;
-                    }
-                }
-                let f = self.faces[fi];
-                let bc = closest_on_triangle(*q, pts[f[0]], pts[f[1]], pts[f[2]]);
-                let p = add(add(scale(pts[f[0]], bc[0]), scale(pts[f[1]], bc[1])), scale(pts[f[2]], bc[2]));
-                let d = dot(sub(*q, p), sub(*q, p));
-                let better = match best {
-                    None => true,
-                    Some((bd, bf, _, _)) => d < bd || (d == bd && fi < bf),
-                };
-                if better {
-                    best = Some((d, fi, bc, p));
-                }
+                visit(fi as usize, &mut best);
             }
         }
-        // Walk: look at the triangles around the best one's corners until none is closer. The
-        // candidates of the k nearest vertices can miss the closest triangle on an uneven mesh
-        // (and would then switch discretely as the query moves); the walk reaches it.
-        let mut rounds = 0;
-        while let Some((bd, bf, _, _)) = best {
-            rounds += 1;
-            if rounds > 32 {
+        // Walk: while the best point lies on an edge or a corner of its triangle, look at the
+        // triangles around that edge's or corner's vertices (a point inside a triangle is a local
+        // minimum of the distance over the surface: done). The triangles of the k nearest
+        // vertices can miss the closest one on an uneven mesh, and the match would then switch
+        // discretely as the query moves; the walk reaches it.
+        for _ in 0..32 {
+            let Some((_, bf, bc, _)) = best else { break };
+            if bc.iter().all(|&x| x > 0.0) {
                 break;
             }
             let mut improved = false;
-            for &vi in &self.faces[bf] {
-                for &fi in &self.vf_faces[self.vf_offsets[vi]..self.vf_offsets[vi + 1]] {
-                    let fi = fi as usize;
-                    if fi == bf {
-                        continue;
-                    }
-                    let f = self.faces[fi];
-                    let bc = closest_on_triangle(*q, pts[f[0]], pts[f[1]], pts[f[2]]);
-                    let p = add(add(scale(pts[f[0]], bc[0]), scale(pts[f[1]], bc[1])), scale(pts[f[2]], bc[2]));
-                    let d = dot(sub(*q, p), sub(*q, p));
-                    let (cd, cf) = match best {
-                        Some((cd, cf, _, _)) => (cd, cf),
-                        None => (bd, bf),
-                    };
-                    if d < cd || (d == cd && fi < cf) {
-                        best = Some((d, fi, bc, p));
-                        improved = d < bd;
+            for c in 0..3 {
+                if bc[c] > 0.0 {
+                    let vi = self.faces[bf][c];
+                    for &fi in &self.vf_faces[self.vf_offsets[vi]..self.vf_offsets[vi + 1]] {
+                        improved |= visit(fi as usize, &mut best);
                     }
                 }
             }
