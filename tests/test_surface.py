@@ -131,25 +131,3 @@ def test_shape_fit_weights_agree_with_the_numpy_weights():
     cos = np.einsum("ij,ij->i", vertex_normals(moved, f), normal)
     w = match_weights(cos, dist, bshare, 80.0, 10.0, 5.0, 1.0)
     assert 0 < res.solves[0]["n_valid"] == int((w > 0).sum()) < len(v)
-
-
-def test_warm_start_gives_the_cold_answer():
-    """Started from the previous round's triangles (or from wrong ones), the closest points are
-    those of a cold search for queries near the surface; a query moved a little walks there."""
-    v, f = bumpy_grid()
-    s = Mesh(v, f).surface
-    rng = np.random.default_rng(5)
-    q = np.column_stack([rng.uniform(3, 20, 300), rng.uniform(3, 20, 300), np.zeros(300)])
-    q[:, 2] = 3.0 * np.sin(q[:, 0] / 5.0) * np.cos(q[:, 1] / 7.0) + rng.uniform(-0.8, 0.8, 300)
-    face0 = s.closest(q, 3)[0]
-    q1 = q + rng.normal(scale=0.3, size=q.shape)
-    cold = s.closest(q1, 3)
-    for start in (face0, np.full(len(q), -1)):
-        warm = s.closest(q1, 3, start)
-        np.testing.assert_allclose(warm[3], cold[3], atol=1e-9)
-    # wrong starts: the walk or the search still ends on the surface next to the query (a local
-    # minimum of the bumpy grid may keep it a hair farther than the closest point)
-    warm = s.closest(q1, 3, rng.integers(0, len(f), len(q)))
-    assert (warm[3] >= cold[3] - 1e-9).all() and (warm[3] - cold[3]).max() < 0.01
-    with pytest.raises(ValueError, match="start must have"):
-        s.closest(q1, 3, face0[:5])

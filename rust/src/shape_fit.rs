@@ -354,14 +354,9 @@ impl ScanTarget {
     /// Correspondences of the deformed template `deformed` with unit normals `normals`: the
     /// closest surface point (or nearest vertex, `surface_k` = 0) and its continuous weight
     /// ([`match_weight`]; see the module docs for the tests applied).
-    /// `hint`: each vertex's scan triangle of the previous call (warm start; updated here, empty
-    /// at first).
-    pub fn correspond(&self, deformed: &[[f64; 3]], normals: &[[f64; 3]], opts: &ShapeFitOptions,
-                      hint: &mut Vec<usize>) -> Correspondences {
+    pub fn correspond(&self, deformed: &[[f64; 3]], normals: &[[f64; 3]], opts: &ShapeFitOptions) -> Correspondences {
         let queries: Vec<[f64; 3]> = deformed.iter().map(|&p| add(p, self.offset)).collect();
-        let sp = self.surface.closest_all_from(&queries, opts.surface_k, hint);
-        hint.clear();
-        hint.extend(sp.iter().map(|m| m.face));
+        let sp = self.surface.closest_all(&queries, opts.surface_k);
         let mut c = Correspondences { target: Vec::with_capacity(sp.len()), normal: Vec::with_capacity(sp.len()), weight: Vec::with_capacity(sp.len()), anchor: Vec::new() };
         for (i, m) in sp.iter().enumerate() {
             let wm = match_weight(dot(m.normal, normals[i]), m.dist, m.boundary, opts.normal_angle_deg, opts.angle_band_deg,
@@ -525,14 +520,13 @@ pub fn fit(
         anchor[i] = Some(sub(l, c));
     }
     let mut gbuf = vec![0.0; 12 * n];
-    let mut hint: Vec<usize> = Vec::new();
     for level in 0..opts.n_levels {
         let mut e_prev = f64::INFINITY;
         for _ in 0..opts.max_icp.max(1) {
             let t_corr = std::time::Instant::now();
             let cur = deform(&x, &pts);
             let normals = vertex_normals(&cur, faces);
-            let mut corr = shifted.correspond(&cur, &normals, opts, &mut hint);
+            let mut corr = shifted.correspond(&cur, &normals, opts);
             corr.anchor = anchor.clone();
             let n_valid = corr.weight.iter().filter(|&&v| v > 0.0).count();
             let seconds_correspond = t_corr.elapsed().as_secs_f64();

@@ -35,7 +35,6 @@ pub struct SurfacePoint {
 pub struct Surface {
     tree: KdTree3,
     faces: Vec<[usize; 3]>,
-    tris: Vec<Tri>,
     vf_offsets: Vec<usize>,
     vf_faces: Vec<u32>,
     normals: Vec<Vec3>,
@@ -107,147 +106,6 @@ pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f64; 3] {
     [1.0 - v - w, v, w]
 }
 
-/// A triangle prepared for point queries: corner a, edges ab, ac and their dot products.
-#[derive(Clone, Copy, Debug)]
-struct Tri {
-    a: Vec3,
-    ab: Vec3,
-    ac: Vec3,
-    aa: f64,
-    abac: f64,
-    cc: f64,
-}
-
-impl Tri {
-    fn new(a: Vec3, b: Vec3, c: Vec3) -> Self {
-        let (ab, ac) = (sub(b, a), sub(c, a));
-        Self { a, ab, ac, aa: dot(ab, ab), abac: dot(ab, ac), cc: dot(ac, ac) }
-    }
-
-    /// Barycentric weights of the closest point to p and its squared distance: Ericson's test
-    /// with the other corners' dot products derived from two (bp = ap − ab, cp = ap − ac).
-    #[inline]
-    fn closest(&self, p: Vec3) -> ([f64; 3], f64) {
-        let ap = sub(p, self.a);
-        let d1 = dot(self.ab, ap);
-        let d2 = dot(self.ac, ap);
-        let d3 = d1 - self.aa;
-        let d4 = d2 - self.abac;
-        let d5 = d1 - self.abac;
-        let d6 = d2 - self.cc;
-        let (v, w) = if d1 <= 0.0 && d2 <= 0.0 {
-            (0.0, 0.0)
-        } else if d3 >= 0.0 && d4 <= d3 {
-            (1.0, 0.0)
-        } else if d6 >= 0.0 && d5 <= d6 {
-            (0.0, 1.0)
-        } else {
-            let vc = d1 * d4 - d3 * d2;
-            let vb = d5 * d2 - d1 * d6;
-            let va = d3 * d6 - d5 * d4;
-            if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-                (d1 / (d1 - d3), 0.0)
-            } else if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-                (0.0, d2 / (d2 - d6))
-            } else if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-                let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-                (1.0 - w, w)
-            } else {
-                let denom = va + vb + vc;
-                if !(denom > 0.0) || !denom.is_finite() {
-                    // degenerate (zero area): the general routine's edge search
-                    let bc = closest_on_triangle(p, self.a, add(self.a, self.ab), add(self.a, self.ac));
-                    let e = sub(ap, add(scale(self.ab, bc[1]), scale(self.ac, bc[2])));
-                    return (bc, dot(e, e));
-                }
-                (vb / denom, vc / denom)
-            }
-        };
-        let e = sub(ap, add(scale(self.ab, v), scale(self.ac, w)));
-        ([1.0 - v - w, v, w], dot(e, e))
-    }
-}
-
-/// Distance (mm) within which a warm-started walk is trusted without a KD-tree search.
-pub const WARM_TRUST: f64 = 1.0;
-
-/// One query's search state: the triangles tested so far (each once) and the best one
-/// (squared distance, triangle, barycentric weights).
-struct Search<'a> {
-    s: &'a Surface,
-    q: Vec3,
-    tested: [u32; 96],
-    n_tested: usize,
-    best: Option<(f64, usize, [f64; 3])>,
-}
-
-impl Search<'_> {
-    /// Test triangle `fi`; true if it is the new best.
-    fn visit(&mut self, fi: usize) -> bool {
-        if self.tested[..self.n_tested].contains(&(fi as u32)) {
-            return false;
-        }
-        if self.n_tested < self.tested.len() {
-            self.tested[self.n_tested] = fi as u32;
-            self.n_tested += 1;
-        }
-        let (bc, d) = self.s.tris[fi].closest(self.q);
-        let better = match self.best {
-            None => true,
-            Some((bd, bf, _)) => d < bd || (d == bd && fi < bf),
-        };
-        if better {
-            self.best = Some((d, fi, bc));
-        }
-        better
-    }
-
-    fn around_vertex(&mut self, vi: usize) -> bool {
-        let s = self.s;
-        let mut improved = false;
-        for &fi in &s.vf_faces[s.vf_offsets[vi]..s.vf_offsets[vi + 1]] {
-            improved |= self.visit(fi as usize);
-        }
-        improved
-    }
-
-    /// The triangles around the query's k nearest vertices.
-    fn around_nearest(&mut self, k: usize) {
-        let mut dist = [0.0f64; 16];
-        let mut idx = [0u64; 16];
-        self.s.tree.knn_one(&self.q, k, f64::INFINITY, &mut dist[..k], &mut idx[..k]);
-        for &vi in &idx[..k] {
-            if (vi as usize) < self.s.points().len() {
-                self.around_vertex(vi as usize);
-            }
-        }
-    }
-
-    /// While the best point lies on an edge or a corner of its triangle, look at the triangles
-    /// around that edge's or corner's vertices (a point inside a triangle is a local minimum of
-    /// the distance over the surface: done). The triangles of the k nearest vertices can miss
-    /// the closest one on an uneven mesh, and the match would then switch discretely as the
-    /// query moves; the walk reaches it.
-    fn walk(&mut self) {
-        for _ in 0..64 {
-            let Some((_, bf, bc)) = self.best else { return };
-            if bc.iter().all(|&x| x > 0.0) {
-                return;
-            }
-            let f = self.s.faces[bf];
-            let mut improved = false;
-            for c in 0..3 {
-                if bc[c] > 0.0 {
-                    improved |= self.around_vertex(f[c]);
-                }
-            }
-            if !improved {
-                return;
-            }
-        }
-    }
-}
-
 impl Surface {
     /// Build from vertices (finite, mm), triangles (indices checked by the caller), unit vertex
     /// normals and boundary flags, all per vertex.
@@ -279,10 +137,9 @@ impl Surface {
                 fill[v] += 1;
             }
         }
-        let tris = faces.iter().map(|f| Tri::new(points[f[0]], points[f[1]], points[f[2]])).collect();
         let tree = KdTree3::new(points)?;
         let boundary = is_boundary.iter().map(|&b| if b { 1.0 } else { 0.0 }).collect();
-        Ok(Self { tree, faces, tris, vf_offsets: count, vf_faces, normals, boundary })
+        Ok(Self { tree, faces, vf_offsets: count, vf_faces, normals, boundary })
     }
 
     /// The vertices.
@@ -291,18 +148,9 @@ impl Surface {
     }
 
     /// Closest point of the surface to `q` among the triangles around its `k` nearest vertices
-    /// and a walk from the best of them (ties: the lowest triangle id). `k` = 0: the nearest
-    /// vertex itself (face `usize::MAX`), as a nearest-neighbour match.
+    /// (ties: the lowest triangle id).
+    /// `k` = 0: the nearest vertex itself (face `usize::MAX`), as a nearest-neighbour match.
     pub fn closest(&self, q: &Vec3, k: usize) -> SurfacePoint {
-        self.closest_from(q, k, usize::MAX)
-    }
-
-    /// [`Surface::closest`] warm-started from triangle `start` (the query's triangle of the
-    /// previous ICP round; `usize::MAX` = none): the walk starts there, and the k-nearest-vertex
-    /// search runs only when the walk ends farther than [`WARM_TRUST`] mm from the query (far
-    /// points have more local minima). A fit moves its template little between rounds, so this
-    /// is a dozen triangle tests without the KD-tree query.
-    pub fn closest_from(&self, q: &Vec3, k: usize, start: usize) -> SurfacePoint {
         if k == 0 {
             let (vi, d) = self.tree.nearest(q);
             return SurfacePoint {
@@ -315,28 +163,70 @@ impl Surface {
             };
         }
         let k = k.min(16).min(self.points().len());
-        let mut st = Search { s: self, q: *q, tested: [0; 96], n_tested: 0, best: None };
-        let warm = start < self.faces.len();
-        if warm {
-            // the start triangle and every triangle touching it (an inside point of one triangle
-            // alone is no local minimum: a neighbour across a concave edge can be closer)
-            for &vi in &self.faces[start] {
-                st.around_vertex(vi);
-            }
-        } else {
-            st.around_nearest(k);
-        }
-        st.walk();
-        if warm && st.best.map_or(true, |b| b.0 > WARM_TRUST * WARM_TRUST) {
-            st.around_nearest(k);
-            st.walk();
-        }
+        let mut dist = [0.0f64; 16];
+        let mut idx = [0u64; 16];
+        self.tree.knn_one(q, k, f64::INFINITY, &mut dist[..k], &mut idx[..k]);
         let pts = self.points();
-        match st.best {
-            Some((_, fi, bc)) => {
+        // triangles tested so far (a few dozen): each is tested once
+        let mut tested = [0u32; 96];
+        let mut n_tested = 0usize;
+        let mut best: Option<(f64, usize, [f64; 3], Vec3)> = None;
+        let mut visit = |fi: usize, best: &mut Option<(f64, usize, [f64; 3], Vec3)>| -> bool {
+            if tested[..n_tested].contains(&(fi as u32)) {
+                return false;
+            }
+            if n_tested < tested.len() {
+                tested[n_tested] = fi as u32;
+                n_tested += 1;
+            }
+            let f = self.faces[fi];
+            let bc = closest_on_triangle(*q, pts[f[0]], pts[f[1]], pts[f[2]]);
+            let p = add(add(scale(pts[f[0]], bc[0]), scale(pts[f[1]], bc[1])), scale(pts[f[2]], bc[2]));
+            let d = dot(sub(*q, p), sub(*q, p));
+            let better = match *best {
+                None => true,
+                Some((bd, bf, _, _)) => d < bd || (d == bd && fi < bf),
+            };
+            if better {
+                *best = Some((d, fi, bc, p));
+            }
+            better
+        };
+        for &vi in &idx[..k] {
+            let vi = vi as usize;
+            if vi >= pts.len() {
+                continue;
+            }
+            for &fi in &self.vf_faces[self.vf_offsets[vi]..self.vf_offsets[vi + 1]] {
+                visit(fi as usize, &mut best);
+            }
+        }
+        // Walk: while the best point lies on an edge or a corner of its triangle, look at the
+        // triangles around that edge's or corner's vertices (a point inside a triangle is a local
+        // minimum of the distance over the surface: done). The triangles of the k nearest
+        // vertices can miss the closest one on an uneven mesh, and the match would then switch
+        // discretely as the query moves; the walk reaches it.
+        for _ in 0..32 {
+            let Some((_, bf, bc, _)) = best else { break };
+            if bc.iter().all(|&x| x > 0.0) {
+                break;
+            }
+            let mut improved = false;
+            for c in 0..3 {
+                if bc[c] > 0.0 {
+                    let vi = self.faces[bf][c];
+                    for &fi in &self.vf_faces[self.vf_offsets[vi]..self.vf_offsets[vi + 1]] {
+                        improved |= visit(fi as usize, &mut best);
+                    }
+                }
+            }
+            if !improved {
+                break;
+            }
+        }
+        match best {
+            Some((d, fi, bc, p)) => {
                 let f = self.faces[fi];
-                let p = add(add(scale(pts[f[0]], bc[0]), scale(pts[f[1]], bc[1])), scale(pts[f[2]], bc[2]));
-                let d = dot(sub(*q, p), sub(*q, p));
                 let mut nrm = [0.0; 3];
                 let mut b = 0.0;
                 for c in 0..3 {
@@ -348,20 +238,17 @@ impl Surface {
                 SurfacePoint { face: fi, bary: bc, point: p, dist: d.sqrt(), normal, boundary: b }
             }
             None => {
-                let (vi, d) = self.tree.nearest(q);
-                SurfacePoint { face: usize::MAX, bary: [1.0, 0.0, 0.0], point: pts[vi], dist: d, normal: self.normals[vi], boundary: self.boundary[vi] }
+                let vi = idx[0] as usize;
+                SurfacePoint {
+                    face: usize::MAX,
+                    bary: [1.0, 0.0, 0.0],
+                    point: pts[vi],
+                    dist: dist[0],
+                    normal: self.normals[vi],
+                    boundary: self.boundary[vi],
+                }
             }
         }
-    }
-
-    /// [`Surface::closest_from`] of every query with its start triangle (`starts` empty = none).
-    pub fn closest_all_from(&self, queries: &[Vec3], k: usize, starts: &[usize]) -> Vec<SurfacePoint> {
-        queries
-            .par_iter()
-            .enumerate()
-            .with_min_len(128)
-            .map(|(i, q)| self.closest_from(q, k, starts.get(i).copied().unwrap_or(usize::MAX)))
-            .collect()
     }
 
     /// [`Surface::closest`] of every query, in parallel.
@@ -473,4 +360,3 @@ mod tests {
         assert_eq!(match_weight(c80 - 1e-9, 1.0, 0.0, 80.0, 0.0, 5.0, 0.0, true), 0.0);
     }
 }
-

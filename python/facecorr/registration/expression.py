@@ -368,12 +368,11 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
     prev_step = np.inf
     prev_delta = None
     rounds = []
-    faces_hint = None  # each vertex's scan triangle of the last round: the next round's warm start
     for _ in range(int(o.max_rounds)):
         lin = T[:, :3]
         p = base + basis.offsets(alpha) @ lin.T
         pn = vertex_normals(p, faces)
-        faces_hint, _, q, dist, qn, b_share = surface.closest(p, int(o.surface_k), faces_hint)
+        _, _, q, dist, qn, b_share = surface.closest(p, int(o.surface_k))
         w_match = match_weights(np.einsum("ij,ij->i", pn, qn), dist, b_share, angle_req, o.angle_band_deg,
                                 o.max_distance, o.distance_band, o.reject_boundary) * keep
         valid = w_match > 0.0

@@ -41,12 +41,9 @@ impl Surface {
     /// vertices (`k` = 0: the nearest vertex). Returns (face (Q,) int64, -1 for a vertex match;
     /// bary (Q, 3); point (Q, 3); dist (Q,); normal (Q, 3) interpolated unit normal; boundary (Q,)
     /// interpolated boundary share in [0, 1]).
-    /// `start` (Q,) int64: optional start triangles (a warm start from the previous round's
-    /// `face`; -1 = none).
-    #[pyo3(signature = (q, k, start=None))]
     #[allow(clippy::type_complexity)]
     fn closest<'py>(
-        &self, py: Python<'py>, q: PyReadonlyArray2<'py, f64>, k: usize, start: Option<PyReadonlyArray1<'py, i64>>,
+        &self, py: Python<'py>, q: PyReadonlyArray2<'py, f64>, k: usize,
     ) -> PyResult<(
         Bound<'py, PyArray1<i64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>,
         Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>,
@@ -56,19 +53,8 @@ impl Surface {
         }
         let qs = points3(&q, "query points")?;
         let nq = qs.len();
-        let starts: Vec<usize> = match start {
-            None => Vec::new(),
-            Some(a) => {
-                let a = a.as_array();
-                if a.len() != nq {
-                    return Err(value_err(format!("start must have {nq} entries, got {}", a.len())));
-                }
-                // out-of-range or negative: no start (the search)
-                a.iter().map(|&f| if f >= 0 { f as usize } else { usize::MAX }).collect()
-            }
-        };
         let s = self.inner.clone();
-        let sp = run(py, "Surface.closest", move || s.closest_all_from(&qs, k, &starts))?;
+        let sp = run(py, "Surface.closest", move || s.closest_all(&qs, k))?;
         let face: Vec<i64> = sp.iter().map(|p| if p.face == usize::MAX { -1 } else { p.face as i64 }).collect();
         let flat = |f: &dyn Fn(&crate::surface::SurfacePoint) -> [f64; 3]| -> Array2<f64> {
             Array2::from_shape_vec((nq, 3), sp.iter().flat_map(f).collect()).expect("shape")
