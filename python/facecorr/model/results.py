@@ -152,8 +152,8 @@ def read_results(results_dir, *, neutral: bool = False, include_flagged: bool = 
         if missing:
             raise ShapeModelError(
                 f"{root}: --neutral needs the expression-removed shape <stem>{NEUTRAL_SUFFIX} beside each result, "
-                f"but {len(missing)} of {len(chosen)} are missing (e.g. {missing[0]}): register with "
-                "`facecorr batch ... --neutral`")
+                f"but {len(missing)} of {len(chosen)} are missing (e.g. {missing[0]}): run `facecorr batch IN "
+                f"{root} --neutral` (it adds the missing ones)")
     if len(chosen) < 2:
         why = f" ({len(skipped)} skipped as flagged; --include-flagged keeps them)" if skipped else ""
         raise ShapeModelError(f"{root}: a shape model needs at least 2 results, {len(chosen)} usable{why}")
