@@ -164,9 +164,12 @@ def _kill_a_busy_worker(client, pids, killed, stop):
         if busy:
             addr, keys = next(iter(busy.items()))
             time.sleep(1.0)
-            if set(client.processing().get(addr, ())) & set(keys):
+            now = set(client.processing().get(addr, ()))
+            if now & set(keys):
                 os.kill(pids[addr], signal.SIGKILL)
-                killed.append((addr, list(keys)))
+                # every task the worker held dies with it (on a loaded machine the scheduler may
+                # have given it the next scan during the second waited)
+                killed.append((addr, sorted(now | set(keys))))
                 return
         time.sleep(0.05)
 

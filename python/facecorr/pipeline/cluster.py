@@ -102,6 +102,9 @@ def connect(scheduler: str, *, workers: int = 2):
         with dask.config.set(quiet_loops):
             cluster = distributed.LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                # without a dashboard the scheduler still serves HTTP (health checks), by default
+                # on port 8787: when another cluster holds it, Dask warns on stderr; any free port
+                scheduler_kwargs={"dashboard_address": ":0"},
                 env={"FACECORR_THREADS": local_threads(workers)},
                 # the batch reports what matters itself (failures.json, the bar); Dask's warnings
                 # (a worker restarted, a slow event loop) would only break the bar
@@ -166,9 +169,10 @@ def _warm_up(probe: str | None) -> dict:
     return {"version": __version__, "readable": probe is None or os.access(probe, os.R_OK)}
 
 
-def check_workers(client, probe: str | None) -> None:
+def check_workers(client, probe: str | None, *, what: str = "the input folder", fix: str = ", or pass --ship-bytes") -> None:
     """Warm up the cluster's current workers and check them: they run this facecorr, and they can
-    read ``probe`` (the first scan, when the workers read scans by path). Raises FacecorrError.
+    read ``probe`` (the first scan, when the workers read scans by path; ``what`` names its
+    folder and ``fix`` ends the message, for the model build's results). Raises FacecorrError.
     Workers that join later are warmed by their first scan."""
     from .._core import __version__
 
@@ -186,7 +190,7 @@ def check_workers(client, probe: str | None) -> None:
     blind = sorted(a for a, r in reports.items() if not r["readable"])
     if blind:
         raise FacecorrError(f"{len(blind)} Dask worker(s) ({blind[0]}, ...) cannot read {probe}: the workers need "
-                            "the input folder at the same path (a shared filesystem), or pass --ship-bytes")
+                            f"{what} at the same path (a shared filesystem){fix}")
 
 
 def _worker_address() -> str | None:
