@@ -135,7 +135,8 @@ def default_chunk_size(n_shapes: int, threads: int) -> int:
 
 class _Stage:
     """Submits tasks and runs batches of them under one progress bar; a task's error is raised at
-    once. ``made``: the futures that may still be running or holding data (cancelled on an error)."""
+    once. ``made``: the futures submitted and not yet gathered (the chunks held on the workers
+    among them), cancelled on an error."""
 
     def __init__(self, client, bar):
         self.client, self.bar, self.made = client, bar, []
@@ -149,10 +150,13 @@ class _Stage:
                 if f.status == "error":
                     f.result()  # raises the worker's exception (a ShapeModelError for a bad result)
                 self.bar.update()
-            return self.client.gather(futures)
+            out = self.client.gather(futures)
         except KilledWorker:
             raise ShapeModelError("a Dask worker died while it held or built part of the model (killed, or out of "
                                   "memory?): run the build again") from None
+        done = {id(f) for f in futures}  # their results are here now: released on the workers with them
+        self.made = [f for f in self.made if id(f) not in done]
+        return out
 
     def submit(self, fn, *args):
         f = self.client.submit(fn, *args, pure=False)
@@ -229,7 +233,7 @@ def build_model_on_cluster(results_dir, client, *, neutral: bool = False, option
         rows = [stage.submit(_align, f, ref, r0, shift, opts.scale) for f in read]
         sums = stage.run(stage.submit(_row_sums, r) for r in rows)
         read = None  # the centred shapes are no longer needed on the workers: released with their futures
-        stage.made = list(rows)
+        stage.made = [f for f in stage.made if any(f is r for r in rows)]
         mean = sum(s for s, _ in sums) / s_total
         data_norm2 = float(sum(q for _, q in sums))
         mean_f = client.scatter(mean, broadcast=True)
