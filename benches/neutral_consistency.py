@@ -64,7 +64,8 @@ for modes, prior in itertools.product(a.residual_modes, a.residual_prior):
     for e, v in sorted(by.items()):
         v = np.array(v)
         allv += list(v)
-        print(f"| {e} | {len(v)} | {v[:, 0].mean():.2f} | {v[:, 1].mean():.2f} | {v[:, 0].mean() / v[:, 1].mean():.2f} |")
+        raw, neutral = v[:, 0].mean(), v[:, 1].mean()
+        print(f"| {e} | {len(v)} | {raw:.2f} | {neutral:.2f} | {raw / neutral:.2f} |")
     v = np.array(allv)
     print(f"| all | {len(v)} | {v[:, 0].mean():.2f} | {v[:, 1].mean():.2f} | {v[:, 0].mean() / v[:, 1].mean():.2f} |")
     print("median seconds per neutral_shape", round(float(np.median(tt)), 4))

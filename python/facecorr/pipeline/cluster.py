@@ -169,7 +169,8 @@ def _warm_up(probe: str | None) -> dict:
     return {"version": __version__, "readable": probe is None or os.access(probe, os.R_OK)}
 
 
-def check_workers(client, probe: str | None, *, what: str = "the input folder", fix: str = ", or pass --ship-bytes") -> None:
+def check_workers(client, probe: str | None, *, what: str = "the input folder",
+                  fix: str = ", or pass --ship-bytes") -> None:
     """Warm up the cluster's current workers and check them: they run this facecorr, and they can
     read ``probe`` (the first scan, when the workers read scans by path; ``what`` names its
     folder and ``fix`` ends the message, for the model build's results). Raises FacecorrError.
