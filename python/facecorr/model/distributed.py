@@ -34,8 +34,10 @@ Errors
     A result that cannot be read is the local build's one-line ShapeModelError, found on the
     worker and raised by the client (the first in the results' order); a worker that dies while
     it holds or computes a chunk (killed, out of memory) stops the build with one line (the chunks
-    live in the workers' memory: there is nothing to resume). Ctrl-C stops a LocalCluster's
-    workers at once.
+    live in the workers' memory: there is nothing to resume). Ctrl-C / SIGTERM cancel the tasks
+    and (:func:`facecorr.pipeline.cluster.connect`) stop a LocalCluster's workers: exit 130 / 143,
+    no model written (checked by hand on the 700 stand-ins, not by a test; a Ctrl-C while the
+    LocalCluster is still starting lets Dask print its own traceback at exit, as in the batch).
 """
 
 from __future__ import annotations
