@@ -47,7 +47,9 @@ def results(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def cluster():
-    """A scheduler (in this process) and 2 worker processes (one thread each) on loopback."""
+    """A scheduler (in this process) and 2 worker processes (one thread each) on loopback. Its
+    scheduler serves HTTP on port 8787 (Dask's default), so that the `--scheduler local` command
+    below meets a taken port, as next to any other cluster."""
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                                   silence_logs=40) as c, distributed.Client(c) as client:
         yield c, client
