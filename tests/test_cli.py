@@ -170,6 +170,13 @@ def test_train_identity_writes_a_loadable_basis(tmp_path):
     assert "1 modes from 2 scans" in out.stdout  # one training subject (F0001) x NE, HA: rank 1
     b = load_identity_basis(tmp_path / "basis.npz", n_vertices=load_template().n_vertices)
     assert b.n_modes == 1 and b.n_samples == 2 and np.isfinite(b.modes).all()
+    # what the blendshapes miss of the HA scan: one displacement, one mode, mean zero
+    out = run_cli("train-identity", db, "--out", tmp_path / "res.npz", "--expression-residual", "--modes", "3")
+    assert out.returncode == 0 and "1 modes from 1 scans" in out.stdout, out.stdout + out.stderr
+    r = load_identity_basis(tmp_path / "res.npz", n_vertices=load_template().n_vertices)
+    assert r.n_modes == 1 and np.all(r.mean == 0) and 0.1 < np.abs(r.modes).max() < 50
+    bad = run_cli("train-identity", db, "--out", tmp_path / "none.npz", "--expression-residual", "--neutral-only")
+    assert bad.returncode == 2 and "drop --neutral-only" in bad.stderr and not (tmp_path / "none.npz").exists()
     # not a database: one line, exit 2, nothing written
     bad = run_cli("train-identity", tmp_path, "--out", tmp_path / "none.npz")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr

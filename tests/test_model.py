@@ -450,7 +450,7 @@ def test_ply_modes(model, tmp_path):
 
 @pytest.fixture(scope="module")
 def batch(tmp_path_factory):
-    """3 synthetic scans (one saved in cm) registered by `facecorr batch`."""
+    """3 synthetic scans (one saved in cm) registered by `facecorr batch --neutral`."""
     from facecorr.cli import main
     from facecorr.io import load_mesh, save_mesh
     from facecorr.synth import generate_scan
@@ -462,7 +462,7 @@ def batch(tmp_path_factory):
     (scans / "M0001").mkdir()
     save_mesh(scans / "M0001" / "M0001_NE00_F3D.ply", load_mesh(rec["scan"]), units="cm")
     out = tmp_path_factory.mktemp("results")
-    assert main(["batch", str(scans), str(out), "--workers", "1"]) == 0
+    assert main(["batch", str(scans), str(out), "--workers", "1", "--neutral"]) == 0
     return out
 
 
@@ -509,6 +509,38 @@ def test_cli_build_show_export_eval(batch, tmp_path, capsys):
     assert 0 < loo["summary"]["mean_error_mm"] < loo["summary"]["mean_shape_error_mm"] * 1.5
 
 
+def test_cli_build_neutral_from_a_batch_neutral(batch, tmp_path, capsys):
+    """`model build --neutral` on `batch --neutral` output: the model is made of the _neutral.ply
+    files (in mm, the cm result converted), and the surprise scan's neutral shape is closer to its
+    subject's neutral scan than its registration is."""
+    import trimesh
+
+    from facecorr.geometry.transforms import kabsch
+
+    npz = tmp_path / "identity.npz"
+    rc, cap = _cli(capsys, "model", "build", batch, "-o", npz, "--neutral", "--modes", "2")
+    assert rc == 0 and "expression-removed shapes" in cap.out, cap
+    m = ShapeModel.load(npz)
+    assert m.source == "neutral" and m.n_scans == 3
+    raw, neutral = read_results(batch, progress=False), read_results(batch, neutral=True, progress=False)
+    assert raw.names == neutral.names == m.names
+    cm = m.names.index("M0001/M0001_NE00_F3D")
+    v = np.asarray(trimesh.load(batch / "M0001" / "M0001_NE00_F3D_neutral.ply", process=False).vertices)
+    np.testing.assert_array_equal(neutral.shapes[cm], v * 10.0)
+    for shape in neutral.shapes:  # the model spans its 3 training shapes
+        _, recon = m.project(shape)
+        assert np.linalg.norm(recon - shape, axis=1).mean() < 0.01
+
+    def apart(a, b):
+        r, t = kabsch(a, b)
+        return float(np.linalg.norm(a @ r.T + t - b, axis=1).mean())
+
+    ne, su = m.names.index("F0001/F0001_NE00_F3D"), m.names.index("F0001/F0001_SU04_F3D")
+    before = apart(raw.shapes[su], raw.shapes[ne])
+    after = apart(neutral.shapes[su], raw.shapes[ne])
+    assert after < 0.6 * before, (before, after)
+
+
 def _error_line(err):
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("facecorr: error:"), err
@@ -523,8 +555,12 @@ def test_cli_bad_inputs_one_line_exit_2_no_output(batch, tmp_path, capsys):
     empty.mkdir()
     rc, cap = _cli(capsys, "model", "build", empty, "-o", out)
     assert rc == 2 and "no registration results" in _error_line(cap.err)
-    rc, cap = _cli(capsys, "model", "build", batch, "-o", out, "--neutral")
-    assert rc == 2 and "_neutral.ply" in _error_line(cap.err) and "3 of 3" in cap.err
+    lost = tmp_path / "lost"
+    shutil.copytree(batch, lost)
+    next(lost.rglob("*SU04_F3D_neutral.ply")).unlink()
+    rc, cap = _cli(capsys, "model", "build", lost, "-o", out, "--neutral")
+    line = _error_line(cap.err)
+    assert rc == 2 and "SU04_F3D_neutral.ply" in line and "1 of 3" in line and "--neutral" in line, line
     # a result whose mesh is not the template
     odd = tmp_path / "odd"
     shutil.copytree(batch, odd)

@@ -62,6 +62,12 @@ def add_commands(sub) -> None:
     b.add_argument("results", help="folder of results (the output folder of `facecorr batch`)")
     b.add_argument("-o", "--output", required=True, help="model file to write (.npz)")
     _add_fit_options(b)
+    b.add_argument("--scheduler", metavar="ADDRESS",
+                   help="build on a Dask cluster: 'local' (a LocalCluster of --workers processes), a scheduler address "
+                        "(tcp://host:8786) or a scheduler file (.json); needs facecorr[dask]. The workers read the "
+                        "result meshes at the paths this machine sees (a shared filesystem) and do the alignment "
+                        "and the Gram products; the same model as without it, to round-off")
+    b.add_argument("--workers", type=_positive, default=2, help="with --scheduler local: worker processes (default 2)")
     b.set_defaults(func=cmd_build)
 
     s = msub.add_parser("show", help="draw the first modes (mean -/+ 3 sd, front and side) and the explained variance")
@@ -96,18 +102,18 @@ def _options(args):
                         include_flagged=args.include_flagged)
 
 
-def _report_reading(rs) -> None:
-    if rs.skipped:
+def _report_reading(skipped, n_failed) -> None:
+    if skipped:
         kinds: dict = {}
-        for _, flags in rs.skipped:
+        for _, flags in skipped:
             for kind in dict.fromkeys(f.split(":", 1)[0] for f in flags):
                 kinds[kind] = kinds.get(kind, 0) + 1
-        print(f"skipped {len(rs.skipped)} flagged result(s) ("
+        print(f"skipped {len(skipped)} flagged result(s) ("
               + ", ".join(f"{k} {n}" for k, n in sorted(kinds.items()))
-              + "; --include-flagged keeps them): " + ", ".join(n for n, _ in rs.skipped[:5])
-              + (" ..." if len(rs.skipped) > 5 else ""))
-    if rs.n_failed:
-        print(f"{rs.n_failed} scan(s) failed registration (failures.json) and have no result")
+              + "; --include-flagged keeps them): " + ", ".join(n for n, _ in skipped[:5])
+              + (" ..." if len(skipped) > 5 else ""))
+    if n_failed:
+        print(f"{n_failed} scan(s) failed registration (failures.json) and have no result")
 
 
 def cmd_build(args) -> int:
@@ -121,15 +127,27 @@ def cmd_build(args) -> int:
     check_output_paths([("-o", out)])
     opts = _options(args)
     opts.check()
-    rs = read_results(args.results, neutral=args.neutral, include_flagged=args.include_flagged)
-    model = fit_model(rs.shapes, rs.faces, rs.names, source="neutral" if args.neutral else "registered",
-                      options=opts)
+    if args.scheduler:
+        from ..model.distributed import build_model_on_cluster
+        from ..model.results import select_results
+        from ..pipeline.cluster import connect
+
+        select_results(args.results, neutral=args.neutral, include_flagged=args.include_flagged)  # no cluster
+        with connect(args.scheduler, workers=args.workers) as client:  # started for a folder it cannot use
+            model, skipped, n_failed = build_model_on_cluster(args.results, client, neutral=args.neutral,
+                                                              options=opts)
+    else:
+        rs = read_results(args.results, neutral=args.neutral, include_flagged=args.include_flagged)
+        model = fit_model(rs.shapes, rs.faces, rs.names, source="neutral" if args.neutral else "registered",
+                          options=opts)
+        skipped, n_failed = rs.skipped, rs.n_failed
     model.save(out)
-    _report_reading(rs)
+    _report_reading(skipped, n_failed)
     kept = float(model.explained_variance().sum())
     print(f"{out}: {model.n_scans} scans, {model.n_vertices} vertices, {model.n_modes} modes "
           f"({100 * kept:.1f} % of the variance), {model.alignment} alignment, "
-          f"{'expression-removed' if args.neutral else 'registered'} shapes")
+          f"{'expression-removed' if args.neutral else 'registered'} shapes; total variance "
+          f"{model.total_variance:.1f} mm^2 ({(model.total_variance / model.n_vertices) ** 0.5:.2f} mm RMS per vertex)")
     return 0
 
 
@@ -188,7 +206,7 @@ def cmd_eval(args) -> int:
     rs = read_results(args.results, neutral=args.neutral, include_flagged=args.include_flagged)
     rows = leave_one_out(rs.shapes, rs.faces, rs.names, by=args.by, options=opts)
     summary = summarize(rows)
-    _report_reading(rs)
+    _report_reading(rs.skipped, rs.n_failed)
     by_group: dict = {}
     for r in rows:
         by_group.setdefault(r["group"], []).append(r["mean_error_mm"])

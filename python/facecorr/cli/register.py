@@ -28,13 +28,19 @@ def add_commands(sub) -> None:
 
     b = sub.add_parser("batch", help="register every scan in a folder (resumable)",
                        description="Register every scan under INPUT_DIR into OUTPUT_DIR (same relative "
-                                   "paths, .ply + .json). A bad scan is reported and skipped; finished "
-                                   "results are kept, so a rerun only does what is missing.")
+                                   "paths, .ply + .json, + .png with --png, + _neutral.ply with --neutral). A bad scan "
+                                   "is reported and skipped; finished results are kept, so a rerun only does the scans "
+                                   "that miss one of their files (each scan's files are written together, all or "
+                                   "none).")
     b.add_argument("input_dir")
     b.add_argument("output_dir")
     b.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     b.add_argument("--png", action="store_true", help="also write a small PNG per scan (the report's thumbnail: the scan "
                    "with the landmarks used beside the registered template coloured by distance to the scan)")
+    b.add_argument("--neutral", action="store_true", help="also write <stem>_neutral.ply per scan: the expression-"
+                   "removed shape (the registered template with its fitted expression taken away; same vertex order, "
+                   "scan's frame and units), as `model build --neutral` reads it. A rerun with --neutral over results "
+                   "without it registers those scans again")
     b.add_argument("--overwrite", action="store_true", help="redo scans that already have results")
     b.add_argument("--units", default="auto", choices=["auto", "mm", "cm", "m"])
     b.add_argument("--landmark-set", metavar="FILE", help="your own points on the template, read off every result")
@@ -114,7 +120,7 @@ def cmd_batch(args) -> int:
 
         points = read_point_set(args.landmark_set, load_template())
     jobs, skipped = plan_batch(Path(args.input_dir), dst, overwrite=args.overwrite, png=args.png, units=args.units,
-                               point_set=args.landmark_set)
+                               point_set=args.landmark_set, neutral=args.neutral)
     failures_path = dst / FAILURES_NAME
     pending = {str(j[0]): j for j in jobs}
     # an earlier run's failures stay recorded until their scan is tried again (a scan with
@@ -149,9 +155,8 @@ def cmd_batch(args) -> int:
         finally:
             gen.close()  # on Ctrl-C / SIGTERM: queued jobs cancelled, running workers stopped
             for job in jobs:
-                for p in job[1:4]:
-                    if p is not None:
-                        remove_stale_temps(p)
+                for p in job.outputs:
+                    remove_stale_temps(p)
             if failures() or failures_path.exists():
                 _write_failures(failures_path, failures())
     failed = [r for r in rows if not r["ok"]]

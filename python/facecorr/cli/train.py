@@ -22,6 +22,10 @@ def add_commands(sub) -> None:
     ti.add_argument("--out", required=True, help="basis file to write (.npz)")
     ti.add_argument("--modes", type=int, default=40, help="modes kept (default 40)")
     ti.add_argument("--neutral-only", action="store_true", help="learn from the neutral scans only")
+    ti.add_argument("--expression-residual", action="store_true",
+                    help="learn instead what the blendshapes miss of the expressions (each training subject's "
+                         "expressive minus neutral shape, its blendshape fit removed), for the expression-removed "
+                         "shape (packaged: data/expression_residual.npz, --modes 10)")
     ti.set_defaults(func=cmd_train_identity)
 
 
@@ -39,8 +43,15 @@ def cmd_train_identity(args) -> int:
 
     if not (Path(args.db) / "index.json").is_file():
         raise FacecorrError(f"{args.db}: not a synthetic database (no index.json)")
+    if args.expression_residual and args.neutral_only:
+        raise FacecorrError("--expression-residual learns from the expressive scans: drop --neutral-only")
     try:
-        basis = train_identity_basis(args.db, n_modes=args.modes, neutral_only=args.neutral_only)
+        if args.expression_residual:
+            from ..registration.identity_training import train_expression_residual
+
+            basis = train_expression_residual(args.db, n_modes=args.modes)
+        else:
+            basis = train_identity_basis(args.db, n_modes=args.modes, neutral_only=args.neutral_only)
     except ValueError as e:
         raise FacecorrError(str(e)) from None
     basis.save(args.out)

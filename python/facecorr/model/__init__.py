@@ -12,8 +12,9 @@ distribution model once pose (and optionally size) is removed::
 Modules: :mod:`.procrustes` (generalized Procrustes alignment), :mod:`.pca` (PCA by the Gram
 matrix), :mod:`.shape_model` (:class:`ShapeModel` and its npz file), :mod:`.results` (reading a
 results folder, and which results are used), :mod:`.build` (:func:`fit_model`,
-:func:`build_model`, :class:`BuildOptions`), :mod:`.evaluate` (leave-one-out reconstruction
-error), :mod:`.export` (statismo HDF5, PLY meshes of the modes).
+:func:`build_model`, :class:`BuildOptions`), :mod:`.distributed` (the same build on a Dask
+cluster: :func:`~.distributed.build_model_on_cluster`), :mod:`.evaluate` (leave-one-out
+reconstruction error), :mod:`.export` (statismo HDF5, PLY meshes of the modes).
 """
 
 from .build import BuildOptions, build_model, fit_model

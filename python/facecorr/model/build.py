@@ -81,13 +81,21 @@ def fit_model(shapes, faces, names=None, *, source: str = "registered", referenc
                                  max_iterations=opts.max_iterations, tolerance=opts.tolerance)
     pca = principal_components(gpa.aligned.reshape(len(x), -1), modes=opts.modes,
                                variance=None if opts.modes is not None else opts.variance)
+    return model_from_pca(pca, faces, names, source=source, options=opts)
+
+
+def model_from_pca(pca, faces, names, *, source: str, options: BuildOptions) -> ShapeModel:
+    """The ShapeModel of ``pca`` (a :class:`facecorr.model.pca.PCA` of S aligned shapes, rows of
+    3N mm) with the training shapes' ``names`` (S) and ``faces`` (M, 3). Raises ShapeModelError
+    when the shapes did not vary."""
+    n_scans = len(pca.scores)
     if len(pca.variances) == 0:
-        raise ShapeModelError(f"the {len(x)} shapes are identical after alignment: there is no variation to model")
-    n = x.shape[1]
+        raise ShapeModelError(f"the {n_scans} shapes are identical after alignment: there is no variation to model")
+    n = len(pca.mean) // 3
     std = np.sqrt(pca.variances)
     return ShapeModel(mean=pca.mean.reshape(n, 3), components=pca.components.reshape(-1, n, 3),
-                      variances=pca.variances, faces=np.asarray(faces), names=names, n_scans=len(x),
-                      scores=pca.scores / std, alignment="similarity" if opts.scale else "rigid",
+                      variances=pca.variances, faces=np.asarray(faces), names=list(names), n_scans=n_scans,
+                      scores=pca.scores / std, alignment="similarity" if options.scale else "rigid",
                       source=source, total_variance=pca.total_variance)
 
 

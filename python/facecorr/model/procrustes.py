@@ -93,37 +93,63 @@ def generalized_procrustes(shapes, *, scale: bool = False, reference=None, max_i
     centroids = x.mean(axis=1)
     c = x - centroids[:, None, :]
     sizes = centroid_size(c)
-    target_size = float(sizes.mean())
-    ref = c[0].copy()
-    if scale:
-        ref *= target_size / max(float(sizes[0]), 1e-300)
-    rot = np.repeat(np.eye(3)[None], len(x), axis=0)
-    s = np.ones(len(x))
-    converged, it = False, 0
-    for it in range(1, max_iterations + 1):
-        rot, s = fit_onto(c, ref, scale=scale)
-        mean = _transformed(c, rot, s).mean(axis=0)
-        if scale:  # the mean's size is free under similarity: hold it at the inputs' average
-            mean *= target_size / max(float(centroid_size(mean)), 1e-300)
-        moved = float(np.sqrt(np.sum((mean - ref) ** 2))) / max(float(centroid_size(mean)), 1e-300)
-        ref = mean
-        if moved < tolerance:
-            converged = True
-            break
+    ref, it, converged = procrustes_mean(
+        c[0], sizes, lambda target: _transformed(c, *fit_onto(c, target, scale=scale)).mean(axis=0),
+        scale=scale, max_iterations=max_iterations, tolerance=tolerance)
     rot, s = fit_onto(c, ref, scale=scale)
-    if reference is not None:
-        from ..geometry.transforms import kabsch
-
-        ref_pts = np.asarray(reference, dtype=np.float64)
-        if ref_pts.shape != ref.shape:
-            raise ValueError(f"generalized_procrustes: reference is {ref_pts.shape}, shapes are {ref.shape}")
-        r0, _ = kabsch(ref, ref_pts)
-        rot = np.einsum("ij,sjk->sik", r0, rot)
-        shift = ref_pts.mean(axis=0)
-    else:
-        shift = np.zeros(3)
+    r0, shift = final_pose(ref, reference)
+    rot = np.einsum("ij,sjk->sik", r0, rot)
     aligned = _transformed(c, rot, s) + shift
     # aligned = s R (x - c) + shift = s x R^T + (shift - s R c)
     translations = shift - s[:, None] * np.einsum("sij,sj->si", rot, centroids)
     return ProcrustesResult(aligned=aligned, mean=aligned.mean(axis=0), rotations=rot, scales=s,
                             translations=translations, iterations=it, converged=converged)
+
+
+def procrustes_mean(first, sizes, fitted_mean, *, scale: bool, max_iterations: int = 100,
+                    tolerance: float = 1e-9):
+    """The mean update of :func:`generalized_procrustes`, whatever holds the shapes.
+
+    Parameters
+    ----------
+    first : (N, 3) the first shape, centred (its pose starts the mean).
+    sizes : (S,) every shape's centroid size (mm).
+    fitted_mean : callable ``(N, 3) target -> (N, 3)``: the mean of every centred shape fitted onto
+        ``target`` (:func:`fit_onto`, then ``s X R^T``). Locally one batched product; on a Dask
+        cluster each worker fits its chunk of shapes (:mod:`facecorr.model.distributed`).
+    scale, max_iterations, tolerance : as in :func:`generalized_procrustes`.
+
+    Returns
+    -------
+    (mean (N, 3) centred, iterations int, converged bool)
+    """
+    sizes = np.asarray(sizes, dtype=np.float64)
+    target_size = float(sizes.mean())
+    ref = np.array(first, dtype=np.float64)
+    if scale:
+        ref *= target_size / max(float(sizes[0]), 1e-300)
+    converged, it = False, 0
+    for it in range(1, max_iterations + 1):
+        mean = np.asarray(fitted_mean(ref), dtype=np.float64)
+        if scale:  # the mean's size is free under similarity: hold it at the inputs' average
+            mean = mean * (target_size / max(float(centroid_size(mean)), 1e-300))
+        moved = float(np.sqrt(np.sum((mean - ref) ** 2))) / max(float(centroid_size(mean)), 1e-300)
+        ref = mean
+        if moved < tolerance:
+            converged = True
+            break
+    return ref, it, converged
+
+
+def final_pose(mean, reference=None):
+    """(R0 (3, 3), shift (3,)): the turn of the converged ``mean`` (centred, (N, 3)) onto
+    ``reference`` (N, 3) and its centroid; without ``reference``: identity and zero."""
+    if reference is None:
+        return np.eye(3), np.zeros(3)
+    from ..geometry.transforms import kabsch
+
+    ref_pts = np.asarray(reference, dtype=np.float64)
+    if ref_pts.shape != mean.shape:
+        raise ValueError(f"generalized_procrustes: reference is {ref_pts.shape}, shapes are {mean.shape}")
+    r0, _ = kabsch(mean, ref_pts)
+    return r0, ref_pts.mean(axis=0)

@@ -101,6 +101,70 @@ def _read_vertices_faces(path: Path):
     return v, f.reshape(-1, 3)
 
 
+def select_results(results_dir, *, neutral: bool = False, include_flagged: bool = False):
+    """Which results under ``results_dir`` a model is built from, before any mesh is read.
+
+    Returns ``(chosen, skipped, n_failed)``: ``chosen`` a list of ``(name, mesh path, mm per
+    unit)``, the mesh being ``<stem>_neutral.ply`` with ``neutral``; ``skipped`` (name, doubtful
+    flags) pairs; ``n_failed`` the scans of failures.json. Raises ShapeModelError (one line): no
+    folder, no result, unknown units, a JSON without its mesh, missing neutral shapes, fewer
+    than 2 usable results."""
+    from ..io import UNIT_TO_MM
+
+    root = Path(results_dir)
+    if not root.is_dir():
+        raise ShapeModelError(f"{root}: not a folder (give the output folder of `facecorr batch`)")
+    found = find_results(root)
+    if not found:
+        raise ShapeModelError(f"{root}: no registration results (<stem>.json + <stem>.ply as `facecorr batch` "
+                              "writes them)")
+    chosen, skipped = [], []
+    for path, data in found:
+        name = path.relative_to(root).with_suffix("").as_posix()
+        units = data.get("units", "mm")
+        if not isinstance(units, str) or units not in UNIT_TO_MM:
+            raise ShapeModelError(f"{path}: unknown units {units!r} (known: {', '.join(UNIT_TO_MM)})")
+        flags = data.get("flags") or []
+        bad = doubtful_flags(flags if isinstance(flags, list) else [])
+        if bad and not include_flagged:
+            skipped.append((name, bad))
+            continue
+        mesh = path.with_suffix(".ply")
+        if not mesh.is_file():
+            raise ShapeModelError(f"{path}: the result has no mesh {mesh.name} beside it (an incomplete copy?)")
+        chosen.append((name, mesh, UNIT_TO_MM[units]))
+    if neutral:
+        chosen = [(name, m.with_name(m.stem + NEUTRAL_SUFFIX), f) for name, m, f in chosen]
+        missing = [m for _, m, _ in chosen if not m.is_file()]
+        if missing:
+            raise ShapeModelError(
+                f"{root}: --neutral needs the expression-removed shape <stem>{NEUTRAL_SUFFIX} beside each result, "
+                f"but {len(missing)} of {len(chosen)} are missing (e.g. {missing[0]}): run `facecorr batch IN "
+                f"{root} --neutral` (it adds the missing ones)")
+    if len(chosen) < 2:
+        why = f" ({len(skipped)} skipped as flagged; --include-flagged keeps them)" if skipped else ""
+        raise ShapeModelError(f"{root}: a shape model needs at least 2 results, {len(chosen)} usable{why}")
+    return chosen, skipped, _count_failed(root)
+
+
+def read_shape(mesh, to_mm: float, n_vertices: int):
+    """(vertices (N, 3) float64 mm, faces (M, 3) int64) of one result mesh, checked: ``n_vertices``
+    vertices, finite coordinates. Raises ShapeModelError naming the file."""
+    v, f = _read_vertices_faces(Path(mesh))
+    if len(v) != n_vertices:
+        raise ShapeModelError(f"{mesh}: {len(v)} vertices, the template has {n_vertices}: not a facecorr "
+                              "registration (or of another template)")
+    if not np.isfinite(v).all():
+        raise ShapeModelError(f"{mesh}: NaN or infinite coordinates")
+    return v * to_mm, f
+
+
+def same_faces(mesh, faces, first_faces, first_name: str) -> None:
+    """Raise ShapeModelError unless ``faces`` (of ``mesh``) are ``first_faces`` (of ``first_name``)."""
+    if faces.shape != first_faces.shape or not np.array_equal(faces, first_faces):
+        raise ShapeModelError(f"{mesh}: its triangles differ from {first_name}'s: not the same template")
+
+
 def read_results(results_dir, *, neutral: bool = False, include_flagged: bool = False, progress: bool = True,
                  n_vertices: int | None = None) -> ResultSet:
     """Read every usable result under ``results_dir`` (module docstring: which, and the errors).
@@ -118,62 +182,19 @@ def read_results(results_dir, *, neutral: bool = False, include_flagged: bool = 
     """
     from tqdm import tqdm
 
-    from ..io import UNIT_TO_MM
-
-    root = Path(results_dir)
-    if not root.is_dir():
-        raise ShapeModelError(f"{root}: not a folder (give the output folder of `facecorr batch`)")
-    found = find_results(root)
-    if not found:
-        raise ShapeModelError(f"{root}: no registration results (<stem>.json + <stem>.ply as `facecorr batch` "
-                              "writes them)")
+    chosen, skipped, n_failed = select_results(results_dir, neutral=neutral, include_flagged=include_flagged)
     if n_vertices is None:
         from ..template import load_template
 
         n_vertices = load_template().n_vertices
-    chosen, skipped = [], []
-    for path, data in found:
-        name = path.relative_to(root).with_suffix("").as_posix()
-        units = data.get("units", "mm")
-        if not isinstance(units, str) or units not in UNIT_TO_MM:
-            raise ShapeModelError(f"{path}: unknown units {units!r} (known: {', '.join(UNIT_TO_MM)})")
-        flags = data.get("flags") or []
-        bad = doubtful_flags(flags if isinstance(flags, list) else [])
-        if bad and not include_flagged:
-            skipped.append((name, bad))
-            continue
-        mesh = path.with_suffix(".ply")
-        if not mesh.is_file():
-            raise ShapeModelError(f"{path}: the result has no mesh {mesh.name} beside it (an incomplete copy?)")
-        chosen.append((name, mesh, UNIT_TO_MM[units]))
-    if neutral:
-        missing = [m.with_name(m.stem + NEUTRAL_SUFFIX) for _, m, _ in chosen]
-        missing = [m for m in missing if not m.is_file()]
-        if missing:
-            raise ShapeModelError(
-                f"{root}: --neutral needs the expression-removed shape <stem>{NEUTRAL_SUFFIX} beside each result, "
-                f"but {len(missing)} of {len(chosen)} are missing (e.g. {missing[0]}): register with "
-                "`facecorr batch ... --neutral`")
-    if len(chosen) < 2:
-        why = f" ({len(skipped)} skipped as flagged; --include-flagged keeps them)" if skipped else ""
-        raise ShapeModelError(f"{root}: a shape model needs at least 2 results, {len(chosen)} usable{why}")
     shapes = np.empty((len(chosen), n_vertices, 3))
     faces = None
     # the bar shows only when reading takes over a second (a few results are read at once)
     bar = tqdm(chosen, desc="reading", unit="result", disable=not progress, delay=1.0)
     for i, (name, mesh, to_mm) in enumerate(bar):
-        if neutral:
-            mesh = mesh.with_name(mesh.stem + NEUTRAL_SUFFIX)
-        v, f = _read_vertices_faces(mesh)
-        if len(v) != n_vertices:
-            raise ShapeModelError(f"{mesh}: {len(v)} vertices, the template has {n_vertices}: not a facecorr "
-                                  "registration (or of another template)")
+        shapes[i], f = read_shape(mesh, to_mm, n_vertices)
         if faces is None:
             faces = f
-        elif f.shape != faces.shape or not np.array_equal(f, faces):
-            raise ShapeModelError(f"{mesh}: its triangles differ from {chosen[0][1].name}'s: not the same template")
-        if not np.isfinite(v).all():
-            raise ShapeModelError(f"{mesh}: NaN or infinite coordinates")
-        shapes[i] = v * to_mm
-    return ResultSet(shapes=shapes, names=[c[0] for c in chosen], faces=faces, skipped=skipped,
-                     n_failed=_count_failed(root))
+        else:
+            same_faces(mesh, f, faces, chosen[0][1].name)
+    return ResultSet(shapes=shapes, names=[c[0] for c in chosen], faces=faces, skipped=skipped, n_failed=n_failed)

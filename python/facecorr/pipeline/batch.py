@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 #: File suffixes a batch treats as scans.
 SCAN_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".wrl")
@@ -176,20 +177,60 @@ def _list_scans(src: Path, dst: Path) -> list:
     return sorted(scans)
 
 
-def result_paths(src: Path, dst: Path, scan: Path, png: bool = False) -> list:
-    """The result files of ``scan``: [mesh, json] (+ png)."""
+def result_paths(src: Path, dst: Path, scan: Path, png: bool = False, neutral: bool = False) -> list:
+    """The result files of ``scan``: [mesh, json] (+ png) (+ neutral: ``<stem>_neutral.ply``)."""
     out_mesh = dst / scan.relative_to(src).with_suffix(".ply")
-    return [out_mesh, out_mesh.with_suffix(".json")] + ([out_mesh.with_suffix(".png")] if png else [])
+    return ([out_mesh, out_mesh.with_suffix(".json")] + ([out_mesh.with_suffix(".png")] if png else [])
+            + ([neutral_path(out_mesh)] if neutral else []))
+
+
+#: Suffix of the expression-removed shape beside a result ``<stem>.ply``.
+NEUTRAL_SUFFIX = "_neutral.ply"
+
+
+def neutral_path(out_mesh) -> Path:
+    """``<stem>_neutral.ply`` beside the result mesh ``<stem>.ply``: the expression-removed shape."""
+    out_mesh = Path(out_mesh)
+    return out_mesh.with_name(out_mesh.stem + NEUTRAL_SUFFIX)
+
+
+class BatchJob(NamedTuple):
+    """One scan of a batch and the files its result is made of (written as one group).
+
+    ``scan``: the scan file; ``out_mesh`` / ``out_json``: ``<stem>.ply`` / ``<stem>.json``;
+    ``png``: the thumbnail or None; ``units``: the scan's units ("auto", "mm", ...);
+    ``point_set``: a point-set JSON path or None; ``neutral``: ``<stem>_neutral.ply`` or None.
+    """
+
+    scan: Path
+    out_mesh: Path
+    out_json: Path
+    png: Path | None = None
+    units: str = "auto"
+    point_set: str | None = None
+    neutral: Path | None = None
+
+    @property
+    def outputs(self) -> list:
+        """The files this job writes, in the order [mesh, json, (png), (neutral)]."""
+        return [p for p in (self.out_mesh, self.out_json, self.png, self.neutral) if p is not None]
 
 
 def plan_batch(src: Path, dst: Path, *, overwrite: bool = False, png: bool = False, units: str = "auto",
-               point_set=None):
-    """(jobs, n_skipped): one job ``(scan, out_mesh, out_json, png, units, point_set)`` per scan under ``src``
-    without both result files under ``dst`` (same relative path, .ply + .json).
+               point_set=None, neutral: bool = False):
+    """(jobs, n_skipped): one :class:`BatchJob` per scan under ``src`` that lacks one of its result
+    files under ``dst`` (same relative path: .ply + .json, + .png with ``png``, +
+    ``_neutral.ply`` with ``neutral``). A scan counts as done only when all of them exist; a job
+    writes all of its scan's files again, as one group.
+
+    A ``<stem>_neutral.ply`` already beside a result that is redone (``overwrite``, or another file
+    missing) is rewritten with it even without ``neutral``: it must not describe an older
+    registration than the ``<stem>.ply`` beside it.
 
     Refused (FacecorrError): ``src`` not a folder, ``dst`` an existing file or ``src`` itself, no
-    scans, two scans with the same result (``face.ply`` and ``face.wrl``). Temporary files a killed
-    run left beside the results are removed."""
+    scans, two scans with the same result (``face.ply`` and ``face.wrl``; with ``neutral`` also
+    ``face_neutral.ply`` and the neutral shape of ``face.ply``). Temporary files a killed run left
+    beside the results are removed."""
     import os
 
     from ..errors import FacecorrError, OutputError
@@ -220,15 +261,24 @@ def plan_batch(src: Path, dst: Path, *, overwrite: bool = False, png: bool = Fal
             raise FacecorrError(f"{owner[out_mesh]} and {s} would both be registered to {out_mesh} "
                                 "(same name, other format): rename one or move it to another folder")
         owner[out_mesh] = s
+    if neutral:
+        for s in scans:
+            shape = neutral_path(result_paths(src, dst, s)[0])
+            if shape in owner:
+                raise FacecorrError(f"{s}'s expression-removed shape would be written to {shape}, the result of "
+                                    f"{owner[shape]}: rename that scan")
     jobs, skipped = [], 0
     for s in scans:
-        out_mesh, out_json, *rest = result_paths(src, dst, s, png=True)
-        for p in (out_mesh, out_json, *rest):
+        out_mesh, out_json, out_png, out_neutral = result_paths(src, dst, s, png=True, neutral=True)
+        for p in (out_mesh, out_json, out_png, out_neutral):
             remove_stale_temps(p)
-        if not overwrite and out_mesh.exists() and out_json.exists():
+        wanted = [out_mesh, out_json] + ([out_png] if png else []) + ([out_neutral] if neutral else [])
+        if not overwrite and all(p.exists() for p in wanted):
             skipped += 1
             continue
-        jobs.append((s, out_mesh, out_json, rest[0] if png else None, units, point_set))
+        keep_neutral = neutral or out_neutral.exists()
+        jobs.append(BatchJob(s, out_mesh, out_json, out_png if png else None, units, point_set,
+                             out_neutral if keep_neutral else None))
     remove_stale_temps(dst / FAILURES_NAME)
     return jobs, skipped
 
@@ -236,11 +286,12 @@ def plan_batch(src: Path, dst: Path, *, overwrite: bool = False, png: bool = Fal
 def register_job(job):
     """Worker: register one scan into its result files (its PNG, if any, the report's thumbnail);
     never raises (returns a status row, :func:`status_row`)."""
-    scan, out_mesh, out_json, png, units, point_set = job
+    job = BatchJob(*job)
+    scan = job.scan
     t0 = time.perf_counter()
     try:
-        result = register_file(scan, out_mesh, out_json, png, units, point_set=point_set, picture="thumbnail",
-                               model=packaged_model())
+        result = register_file(scan, job.out_mesh, job.out_json, job.png, job.units, point_set=job.point_set,
+                               picture="thumbnail", model=packaged_model(), neutral=job.neutral)
         return status_row(scan, t0, result)
     except Exception as e:  # noqa: BLE001 - one bad scan must not stop the batch
         return failure_row(scan, e)

@@ -45,7 +45,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import FacecorrError
-from .batch import check_register_outputs, failure_row, packaged_model, register_scan, save_registration, status_row
+from .batch import (BatchJob, check_register_outputs, failure_row, packaged_model, register_scan, save_registration,
+                    status_row)
 
 #: Times Dask re-runs a task that raised (an infrastructure fault: scan errors are rows).
 TASK_RETRIES = 1
@@ -101,6 +102,9 @@ def connect(scheduler: str, *, workers: int = 2):
         with dask.config.set(quiet_loops):
             cluster = distributed.LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                # without a dashboard the scheduler still serves HTTP (health checks), by default
+                # on port 8787: when another cluster holds it, Dask warns on stderr; any free port
+                scheduler_kwargs={"dashboard_address": ":0"},
                 env={"FACECORR_THREADS": local_threads(workers)},
                 # the batch reports what matters itself (failures.json, the bar); Dask's warnings
                 # (a worker restarted, a slow event loop) would only break the bar
@@ -165,9 +169,11 @@ def _warm_up(probe: str | None) -> dict:
     return {"version": __version__, "readable": probe is None or os.access(probe, os.R_OK)}
 
 
-def check_workers(client, probe: str | None) -> None:
+def check_workers(client, probe: str | None, *, what: str = "the input folder",
+                  fix: str = ", or pass --ship-bytes") -> None:
     """Warm up the cluster's current workers and check them: they run this facecorr, and they can
-    read ``probe`` (the first scan, when the workers read scans by path). Raises FacecorrError.
+    read ``probe`` (the first scan, when the workers read scans by path; ``what`` names its
+    folder and ``fix`` ends the message, for the model build's results). Raises FacecorrError.
     Workers that join later are warmed by their first scan."""
     from .._core import __version__
 
@@ -185,7 +191,7 @@ def check_workers(client, probe: str | None) -> None:
     blind = sorted(a for a, r in reports.items() if not r["readable"])
     if blind:
         raise FacecorrError(f"{len(blind)} Dask worker(s) ({blind[0]}, ...) cannot read {probe}: the workers need "
-                            "the input folder at the same path (a shared filesystem), or pass --ship-bytes")
+                            f"{what} at the same path (a shared filesystem){fix}")
 
 
 def _worker_address() -> str | None:
@@ -209,14 +215,16 @@ def _scratch_dir() -> str | None:
 
 def register_on_worker(job, scan_bytes=None, points=None) -> dict:
     """A Dask task: register one scan and return its row (:func:`.batch.status_row` or
-    :func:`.batch.failure_row`) with ``"files"``, the bytes of [mesh, json (, picture)] as the
-    local batch writes them, and ``"worker"``, this worker's address. Never raises.
+    :func:`.batch.failure_row`) with ``"files"``, the bytes of the job's outputs
+    (:attr:`.batch.BatchJob.outputs`: mesh, json (, picture) (, neutral shape)) as the local batch
+    writes them, and ``"worker"``, this worker's address. Never raises.
 
-    ``job``: a :func:`.batch.plan_batch` job whose scan path the worker can read, unless
+    ``job``: a :class:`.batch.BatchJob` whose scan path the worker can read, unless
     ``scan_bytes`` (the scan file's content) is given; ``points``: a PointSet or None."""
     import tempfile
 
-    scan, out_mesh, out_json, png, units, _ = job
+    job = BatchJob(*job)
+    scan = job.scan
     t0 = time.perf_counter()
     names = {}
     try:
@@ -228,18 +236,19 @@ def register_on_worker(job, scan_bytes=None, points=None) -> dict:
                 src.parent.mkdir()
                 src.write_bytes(scan_bytes)
                 names[str(src)] = str(scan)
-            outs = [tmp / "out" / Path(p).name for p in (out_mesh, out_json, png) if p is not None]
-            names.update({str(o): str(p) for o, p in zip(outs, (out_mesh, out_json, png))})
-            mesh, result = register_scan(src, units=units, points=points, model=packaged_model())
-            save_registration(mesh, result, outs[0], outs[1], outs[2] if png else None, title=src.name,
-                              picture="thumbnail")
-            files = [o.read_bytes() for o in outs]
+            private = {p: tmp / "out" / Path(p).name for p in job.outputs}
+            names.update({str(o): str(p) for p, o in private.items()})
+            mesh, result = register_scan(src, units=job.units, points=points, model=packaged_model())
+            save_registration(mesh, result, private[job.out_mesh], private[job.out_json],
+                              private.get(job.png) if job.png else None, title=src.name, picture="thumbnail",
+                              neutral=private.get(job.neutral) if job.neutral else None)
+            files = [o.read_bytes() for o in private.values()]
         row = status_row(scan, t0, result)
         row["files"] = files
     except Exception as e:  # noqa: BLE001 - one bad scan must not stop the batch
         row = failure_row(scan, e)
-        for private, public in names.items():  # messages name the user's paths, never ours
-            row["error"] = row["error"].replace(private, public)
+        for private_name, public in names.items():  # messages name the user's paths, never ours
+            row["error"] = row["error"].replace(private_name, public)
     row["worker"] = _worker_address()
     return row
 
@@ -257,9 +266,8 @@ def _write_files(job, files) -> None:
     """Write a result's files onto the job's outputs, as one atomic group."""
     from ..io.atomic import atomic_paths
 
-    _, out_mesh, out_json, png, _, _ = job
-    with atomic_paths(*(p for p in (out_mesh, out_json, png) if p is not None)) as tmps:
-        for tmp, data in zip(tmps, files):
+    with atomic_paths(*BatchJob(*job).outputs) as tmps:
+        for tmp, data in zip(tmps, files, strict=True):
             tmp.write_bytes(data)
 
 
@@ -275,7 +283,7 @@ def cluster_results(jobs, client, *, ship_bytes: bool = False, points=None, prog
     from distributed import KilledWorker, as_completed
     from tqdm import tqdm
 
-    jobs = list(jobs)
+    jobs = [BatchJob(*j) for j in jobs]
     if not ship_bytes and jobs:
         check_workers(client, os.path.abspath(jobs[0][0]))
     else:
@@ -289,13 +297,13 @@ def cluster_results(jobs, client, *, ship_bytes: bool = False, points=None, prog
         """Submit ``job``; a row at once when it cannot even be sent (outputs refused, unreadable scan)."""
         scan = job[0]
         try:
-            check_register_outputs(scan, *job[1:4])
+            check_register_outputs(scan, job.out_mesh, job.out_json, job.png, job.neutral)
             data = Path(scan).read_bytes() if ship_bytes else None
         except (FacecorrError, OSError) as e:
             if isinstance(e, OSError):
                 e = FacecorrError(f"{scan}: cannot read: {e.strerror or e}")
             return failure_row(scan, e)
-        remote = (os.path.abspath(scan), *job[1:])
+        remote = job._replace(scan=os.path.abspath(scan))
         f = client.submit(register_on_worker, remote, data, points, pure=False, retries=TASK_RETRIES,
                           key=f"facecorr-register-{Path(scan).stem}-{os.urandom(6).hex()}")
         inflight[f] = (job, attempt)

@@ -142,3 +142,63 @@ def train_identity_basis(db_dir, template=None, n_modes: int = 40, neutral_only:
             raise ValueError(f"{r.get('dense')}: cannot use its dense ground truth ({e})") from None
         shapes.append(x)
     return basis_from_shapes(np.array(shapes), template, n_modes=n_modes, remove_expression=remove_expression)
+
+
+def train_expression_residual(db_dir, template=None, n_modes: int = 10, progress: bool = True) -> IdentityBasis:
+    """Learn what the blendshapes miss of the expressions: an :class:`IdentityBasis` (mean zero) of
+    expression displacements, for :func:`.neutral.neutral_shape`.
+
+    For every training subject of a synthetic database with a neutral scan, each of its expressive
+    scans' template shape (:func:`reconstruct_template` of the dense ground truth) is rigidly fitted
+    onto the neutral one; their difference, less its bounded blendshape fit, is what the 14
+    blendshapes cannot express (a disgust's nose wrinkle and raised upper lip). The modes are the
+    principal directions of these residual displacements, about zero (no expression), scaled to
+    one standard deviation, mm.
+
+    Parameters
+    ----------
+    db_dir : folder written by ``facecorr synth`` (its ``index.json`` and ``*_dense.npz``); its
+        training split only is read.
+    template : Template (default: the packaged one).
+    n_modes : modes kept.
+    progress : show a progress bar.
+    """
+    from collections import defaultdict
+
+    from tqdm import tqdm
+
+    from ..synth import load_index
+    from ..template import load_template
+
+    template = template if template is not None else load_template()
+    by_subject: dict = defaultdict(dict)
+    for r in load_index(db_dir):
+        if r.get("split") == "train":
+            by_subject[r["subject"]].setdefault(r["expression"], []).append(r)
+    pairs = [(recs["NE"][0], r) for _, recs in sorted(by_subject.items()) if "NE" in recs
+             for e, rs in sorted(recs.items()) if e != "NE" for r in rs]
+    if not pairs:
+        raise ValueError(f"{db_dir}: no expressive training scan with a neutral scan of its subject")
+    blend = np.asarray(template.blendshapes, dtype=np.float64)
+    neutral_of: dict = {}
+    disp = []
+    for ne, r in tqdm(pairs, desc="expression residual", disable=not progress):
+        try:
+            if ne["dense"] not in neutral_of:
+                with np.load(ne["dense"]) as d:
+                    neutral_of[ne["dense"]] = reconstruct_template(d, template)[0]
+            with np.load(r["dense"]) as d:
+                x, _ = reconstruct_template(d, template)
+        except (OSError, KeyError, ValueError) as e:
+            raise ValueError(f"{r.get('dense')}: cannot use its dense ground truth ({e})") from None
+        xn = neutral_of[ne["dense"]]
+        rot, t = kabsch(x, xn)
+        disp.append(_remove_expression(x @ rot.T + t - xn, blend).ravel())
+    disp = np.array(disp)
+    _, sv, vt = np.linalg.svd(disp, full_matrices=False)  # about zero: "no expression" is the origin
+    m = max(1, min(int(n_modes), len(disp)))
+    std = sv[:m] / np.sqrt(len(disp))
+    var = sv ** 2
+    return IdentityBasis(mean=np.zeros_like(template.vertices, dtype=np.float64),
+                         modes=(vt[:m] * std[:, None]).reshape(m, -1, 3), n_samples=len(disp),
+                         explained=var[:m] / var.sum())
