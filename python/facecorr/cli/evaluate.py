@@ -15,6 +15,8 @@ def add_commands(sub) -> None:
     er.add_argument("--gt-landmarks", action="store_true", help="guide by the ground-truth landmarks instead of predicted ones")
     er.add_argument("--workers", type=int, default=2)
     er.add_argument("--limit", type=int, help="only the first N evaluation scans")
+    er.add_argument("--split", default="test",
+                    help="subjects to evaluate: test (default), train, or ood_test / ood_holdout on a bu3dfe-ood database")
     add_run_options(er)
     er.set_defaults(func=cmd_eval_registration)
 
@@ -24,6 +26,8 @@ def add_commands(sub) -> None:
     e.add_argument("--out", default="out/eval_landmarks", help="report folder")
     e.add_argument("--workers", type=int, default=2)
     e.add_argument("--limit", type=int, help="only the first N evaluation scans")
+    e.add_argument("--split", default="test",
+                   help="subjects to evaluate: test (default), train, or ood_test / ood_holdout on a bu3dfe-ood database")
     e.add_argument("--rotate", action="store_true", help="turn every scan by a random rotation first")
     e.add_argument("--method", default="default", choices=["default", "paper"],
                    help="default (protrusion start + template patches) or paper (umbilic/FPPCA start + BP)")
@@ -65,7 +69,7 @@ def cmd_eval_registration(args) -> int:
     log = open_log(args)
     try:
         rows = evaluate_registration(args.db, args.out, use_gt_landmarks=args.gt_landmarks,
-                                     workers=args.workers, limit=args.limit, progress=not args.quiet,
+                                     workers=args.workers, limit=args.limit, split=args.split, progress=not args.quiet,
                                      on_row=_logger(log, "registration"), quiet=args.quiet)
     finally:
         if log is not None:
@@ -82,7 +86,7 @@ def cmd_eval_landmarks(args) -> int:
     try:
         _, rows, md = evaluate_landmarks(args.db, args.out, model=args.model, workers=args.workers,
                                          limit=args.limit, rotate=args.rotate, method=args.method,
-                                         png=not args.no_png, progress=not args.quiet,
+                                         png=not args.no_png, progress=not args.quiet, split=args.split,
                                          on_row=_logger(log, "landmarks"))
     finally:
         if log is not None:

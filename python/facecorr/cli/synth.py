@@ -15,10 +15,12 @@ def add_commands(subparsers) -> None:
                     "landmark, iBUG-68 and dense ground truth; BU-3DFE file layout.",
     )
     p.add_argument("out_dir", help="output folder (created)")
-    p.add_argument("--preset", choices=("tiny", "bu3dfe"), default="tiny", help="tiny = 2 subjects, bu3dfe = 100 (x 25 scans)")
+    p.add_argument("--preset", choices=("tiny", "bu3dfe", "bu3dfe-ood"), default="tiny",
+                   help="tiny = 2 subjects, bu3dfe = 100 (x 25 scans), bu3dfe-ood = 30 out-of-model subjects with "
+                        "the artefacts of real scans (test-only: splits ood_test / ood_holdout)")
     p.add_argument("--seed", type=int, default=0, help="database seed (bitwise reproducible), default 0")
     p.add_argument("--workers", type=int, default=2, help="worker processes, default 2 (output does not depend on it)")
-    p.add_argument("--crop", choices=("face", "none"), default="face", help="face = cropped like BU-3DFE, none = raw scan")
+    p.add_argument("--crop", choices=("face", "none"), default=None, help="face = cropped like BU-3DFE, none = raw scan")
     p.add_argument("--subjects", type=int, default=None, help="override the preset's number of subjects")
     p.add_argument("--subset", choices=("all", "eval"), default="all", help="eval = NE + 6 expressions at level 4")
     p.add_argument("--expressions", default=None, help="comma-separated codes, e.g. NE,HA,SU (default all)")
@@ -46,7 +48,7 @@ def run_synth(args) -> int:
     log = open_log(args)
     try:
         recs = generate(
-            args.out_dir, preset=args.preset, seed=args.seed, workers=args.workers, crop=args.crop,
+            args.out_dir, preset=args.preset, seed=args.seed, workers=args.workers, crop=args.crop or "face",
             subjects=args.subjects, subset=args.subset,
             expressions=args.expressions.split(",") if args.expressions else None,
             levels=args.levels.split(",") if args.levels else None,

@@ -105,13 +105,14 @@ def markdown(table, rows) -> str:
 
 def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int | None = None,
                        rotate: bool = False, progress: bool = True, method: str = "default",
-                       png: bool = True, on_row=None):
+                       png: bool = True, on_row=None, split: str = "test"):
     """Run the evaluation; returns (table rows, per-scan rows) and writes the reports to out_dir.
 
     ``rotate``: every scan is first turned by a uniformly random rotation of SO(3) (seeded per scan).
     ``method``: a key of :data:`METHODS` ("default", or "paper" for the paper's start + BP).
     ``png``: also write ``landmarks.png`` (:func:`plot_landmarks` of the first 4 and the 4 worst scans).
     ``on_row``: called with each per-scan row as it comes (a run log).
+    ``split``: the subjects evaluated ("test"; "ood_test" or "ood_holdout" on a ``bu3dfe-ood`` database).
     """
     from ..landmarks.model import load_model
     from ..render import plot_landmarks
@@ -122,7 +123,8 @@ def evaluate_landmarks(db_dir, out_dir, model=None, workers: int = 2, limit: int
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
     rows = run_on_eval_scans(db_dir, _eval_one, lambda k, r: (r, model, (1000 + k) if rotate else None, METHODS[method]),
-                             workers=workers, limit=limit, desc="eval landmarks", progress=progress, on_row=on_row)
+                             workers=workers, limit=limit, split=split, desc="eval landmarks", progress=progress,
+                             on_row=on_row)
     table = landmark_table(rows)
     md = markdown(table, rows)
     out = Path(out_dir)

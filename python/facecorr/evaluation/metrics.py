@@ -172,7 +172,8 @@ def dense_error(registered, dense, template=None, return_mask: bool = False):
     Parameters
     ----------
     registered : (N, 3) registered template vertices, mm (scan frame).
-    dense : mapping with ``tri`` (S,) ICT triangle of each scan vertex, ``bary`` (S, 3) its
+    dense : mapping with ``tri`` (S,) ICT triangle of each scan vertex (-1: geometry with no
+        correspondence, e.g. the glasses or clothing of the ``bu3dfe-ood`` preset), ``bary`` (S, 3) its
         barycentric coordinates in that triangle (ICT corner order), ``clean`` (S, 3) its
         noise-free position in the scan frame, mm (the synthetic database's ``*_dense.npz``).
     template : Template (default: the packaged one).
@@ -181,7 +182,8 @@ def dense_error(registered, dense, template=None, return_mask: bool = False):
     Returns
     -------
     (S',) float64 distances in mm, one per scan vertex whose ICT triangle is in the template
-    (scan vertices on eyeballs, teeth, neck, ... have no counterpart and are skipped);
+    (scan vertices on eyeballs, teeth, neck, ... and those with ``tri = -1`` have no counterpart
+    and are skipped);
     ``(errors, mask)`` if ``return_mask``.
     """
     t = _template(template)
@@ -196,9 +198,9 @@ def dense_error(registered, dense, template=None, return_mask: bool = False):
     if tri.shape != (s,) or bary.shape != (s, 3) or clean.shape != (s, 3):
         raise ValueError(f"dense ground truth shapes disagree: tri {tri.shape}, bary {bary.shape}, clean {clean.shape}")
     m_ict = len(t.ict_face_to_template_face)
-    if s and (tri.min() < 0 or tri.max() >= m_ict):
-        raise ValueError(f"dense ground truth triangle ids out of range [0, {m_ict - 1}]")
-    face = t.ict_face_to_template_face[tri]
+    if s and (tri.min() < -1 or tri.max() >= m_ict):
+        raise ValueError(f"dense ground truth triangle ids out of range [-1, {m_ict - 1}]")
+    face = np.where(tri >= 0, t.ict_face_to_template_face[np.maximum(tri, 0)], -1)
     mask = face >= 0
     corners = r[t.faces[face[mask]]]  # (S', 3 corners, 3)
     p = np.einsum("sk,skd->sd", bary[mask], corners)

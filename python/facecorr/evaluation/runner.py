@@ -30,18 +30,22 @@ def run_on_eval_scans(db_dir, worker, make_job, *, workers=2, limit=None, split=
     """``[worker(make_job(k, record)) ...]`` over the evaluation scans of ``db_dir`` (in order).
 
     ``worker`` must be a module-level function that never raises (it returns a row with
-    ``"ok"``); ``limit`` keeps the first scans only; ``on_row(row)`` is called with each row as it
+    ``"ok"``); ``split`` selects the subjects ("test", "train", or a ``bu3dfe-ood`` database's
+    "ood_test" / "ood_holdout"); ``limit`` keeps the first scans only; ``on_row(row)`` is called with each row as it
     comes (a run log). Raises FacecorrError if there are none.
     """
     from ..errors import FacecorrError
     from ..synth import load_index
     from ..threads import process_iter
 
-    records = select_eval_records(load_index(db_dir), split=split)
+    every = load_index(db_dir)
+    records = select_eval_records(every, split=split)
     if limit:
         records = records[:limit]
     if not records:
-        raise FacecorrError(f"{db_dir}: no {split} scans at the evaluation level")
+        have = sorted({r["split"] for r in every})
+        raise FacecorrError(f"{db_dir}: no {split} scans at the evaluation level (its splits: {', '.join(have)}; "
+                            f"choose one with --split)")
     jobs = [make_job(k, r) for k, r in enumerate(records)]
     rows = []
     for row in process_iter(worker, jobs, workers=workers, desc=desc, progress=progress):

@@ -47,8 +47,9 @@ from .expressions import EXPRESSION_CODES, expression_weights
 from .model import deform, load_ict, sample_identity
 from .scanner import ScannerConfig, scan_head
 
-#: Presets: number of subjects.
-PRESETS = {"tiny": 2, "bu3dfe": 100}
+#: Presets: number of subjects. ``bu3dfe-ood``: out-of-model subjects with the artefacts of real
+#: scans, all test-only (:mod:`facecorr.synth.ood_preset`).
+PRESETS = {"tiny": 2, "bu3dfe": 100, "bu3dfe-ood": 30}
 
 
 class SynthError(FacecorrError, ValueError):
@@ -70,6 +71,17 @@ def subject_split(name: str) -> str:
     """"train" or "test": fixed, seed-independent, balanced (see the module docstring)."""
     g, n = _parse_subject(name)
     return "train" if (n + g) % 2 == 1 else "test"
+
+
+def preset_split(preset: str, subject: str) -> str:
+    """The split of ``subject`` in ``preset``: :func:`subject_split`, or for ``bu3dfe-ood``
+    "ood_test" / "ood_holdout" (:func:`facecorr.synth.ood.ood_split`)."""
+    if preset == "bu3dfe-ood":
+        from .ood import ood_split
+
+        g, n = _parse_subject(subject)
+        return ood_split(2 * (n - 1) + g)
+    return subject_split(subject)
 
 
 def scan_stem(subject: str, expression: str, level: int) -> str:
@@ -131,19 +143,35 @@ def _save_scan(path: Path, scan, colour) -> None:
 
 
 def _job(args):
-    out_dir, seed, subject, expression, level, cfg, colour = args
+    out_dir, seed, subject, expression, level, cfg, colour, preset = args
     t0 = time.perf_counter()
-    scan, alpha = make_scan(seed, subject, expression, level, cfg)
+    extra, extra_npz = {}, {}
+    if preset == "bu3dfe-ood":
+        from .ood_preset import make_ood_scan, save_ood_scan, subject_of
+
+        scan, alpha, labels, plan, details = make_ood_scan(seed, subject, expression, level, cfg)
+        colour = plan.get("colour", {}).get("source")
+        identity = subject_of(seed, subject).identity
+        extra = {"artefacts": [k for k in plan], "artefact_details": details,
+                 "ood": subject_of(seed, subject).info()}
+        extra_npz = {"artefact_label": labels.astype(np.uint8)}
+    else:
+        scan, alpha = make_scan(seed, subject, expression, level, cfg)
+        identity = subject_identity(seed, subject)
     stem = scan_stem(subject, expression, level)
     d = Path(out_dir) / subject
     d.mkdir(parents=True, exist_ok=True)
-    _save_scan(d / f"{stem}{_scan_suffix(colour)}", scan, colour)
+    if preset == "bu3dfe-ood":
+        g, n = _parse_subject(subject)
+        save_ood_scan(d / f"{stem}{_scan_suffix(colour)}", scan, labels, colour, seed * 7919 + 2 * n + g)
+    else:
+        _save_scan(d / f"{stem}{_scan_suffix(colour)}", scan, colour)
     with open(d / f"{stem}_dense.npz", "wb") as fh:
         np.savez(
             fh, tri=scan.tri.astype(np.int32), bary=scan.bary.astype(np.float32),
             clean=scan.clean.astype(np.float32), pose=scan.pose.astype(np.float64),
             expression_weights=alpha.astype(np.float32),
-            identity_weights=subject_identity(seed, subject).astype(np.float32),
+            identity_weights=identity.astype(np.float32), **extra_npz,
         )
     r = lambda p: [round(float(x), 4) for x in p]  # noqa: E731  (0.1 um is plenty)
     gt = {
@@ -151,18 +179,19 @@ def _job(args):
         "subject": subject,
         "expression": expression,
         "level": level,
-        "split": subject_split(subject),
+        "split": preset_split(preset, subject),
         "units": "mm",
         "landmarks": {name: r(p) for name, p in zip(LANDMARK_NAMES, scan.landmarks)},
         "ibug68": [None if np.isnan(p).any() else r(p) for p in scan.ibug68],
         "dense": f"{stem}_dense.npz",
+        **extra,
     }
     if colour is not None:
         gt["colour"] = {"source": colour, "function": "facecorr.synth.colour.skin_colour"}
     with open(d / f"{stem}.json", "w") as fh:
         json.dump(gt, fh, indent=1)
         fh.write("\n")
-    return stem, len(scan.vertices), len(scan.faces), time.perf_counter() - t0
+    return stem, len(scan.vertices), len(scan.faces), time.perf_counter() - t0, gt["scan"]
 
 
 def _init_worker():
@@ -210,7 +239,8 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
     Parameters
     ----------
     out_dir : path, created if needed.
-    preset : "tiny" (2 subjects) or "bu3dfe" (100 subjects), x 25 scans each.
+    preset : "tiny" (2 subjects), "bu3dfe" (100 subjects) or "bu3dfe-ood" (30 out-of-model
+        subjects with the artefacts of real scans, :mod:`facecorr.synth.ood_preset`), x 25 scans each.
     seed : int, the database seed (bitwise reproducible).
     workers : processes (scans are independent; the result does not depend on this).
     crop : "face" (BU-3DFE-like cropped faces) or "none" (raw scans: head, neck, ears).
@@ -230,12 +260,15 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
     """
     if int(workers) < 1:
         raise SynthError("workers must be at least 1")
+    if preset == "bu3dfe-ood" and (colour is not None or crop != "face"):
+        raise SynthError("the bu3dfe-ood preset chooses colour and raw crops per scan (its artefacts); "
+                         "drop --colour / --crop")
     _check_colour(colour)
     cfg = _scanner_config(crop, config, scanner_options)
     jobs = scan_list(preset, subjects, expressions, levels, subset)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    args = [(str(out), int(seed), s, e, lv, cfg, colour) for s, e, lv in jobs]
+    args = [(str(out), int(seed), s, e, lv, cfg, colour, preset) for s, e, lv in jobs]
     from tqdm import tqdm
 
     bar = tqdm(total=len(args), desc="synth", unit="scan", disable=not progress)
@@ -246,8 +279,8 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
         results.append(r)
         bar.update()
         if on_scan is not None:
-            stem, n_v, n_f, secs = r
-            on_scan({"scan": f"{subject}/{stem}.ply", "status": "ok", "seconds": round(secs, 3),
+            stem, n_v, n_f, secs, name = r
+            on_scan({"scan": f"{subject}/{name}", "status": "ok", "seconds": round(secs, 3),
                      "vertices": n_v, "faces": n_f})
 
     if int(workers) == 1:
@@ -261,11 +294,11 @@ def generate(out_dir, preset="tiny", seed=0, workers=2, crop="face", subjects=No
                 done(r)
     bar.close()
     records = []
-    for (s, e, lv), _ in zip(jobs, results):
+    for (s, e, lv), res in zip(jobs, results):
         stem = scan_stem(s, e, lv)
-        records.append({"scan": f"{s}/{stem}{_scan_suffix(colour)}", "gt": f"{s}/{stem}.json", "subject": s, "expression": e,
-                        "level": lv, "split": subject_split(s)})
-    index = {"preset": preset, "seed": int(seed), "crop": crop, "scans": records}
+        records.append({"scan": f"{s}/{res[4]}", "gt": f"{s}/{stem}.json", "subject": s, "expression": e,
+                        "level": lv, "split": preset_split(preset, s)})
+    index = {"preset": preset, "seed": int(seed), "crop": "per-scan" if preset == "bu3dfe-ood" else crop, "scans": records}
     if colour is not None:
         index["colour"] = colour
     with open(out / "index.json", "w") as fh:
@@ -332,7 +365,7 @@ def generate_scan(out_dir, subject=1, expression="HA", level=4, seed=0, crop="fa
     _check_colour(colour)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    _job((str(out), int(seed), name, expression, int(level), cfg, colour))
+    _job((str(out), int(seed), name, expression, int(level), cfg, colour, "bu3dfe"))
     stem = scan_stem(name, expression, int(level))
     d = (out / name).resolve()
     return {"scan": str(d / f"{stem}{_scan_suffix(colour)}"), "gt": str(d / f"{stem}.json"), "dense": str(d / f"{stem}_dense.npz"),
