@@ -192,7 +192,7 @@ def _band(P: np.ndarray, side: np.ndarray, width: float, step: float, closed: bo
 
 
 # ------------------------------------------------------------------------------------------
-def _hair(ed: _Editable, ib: np.ndarray, rng, spacing: float) -> dict:
+def _hair(ed: _Editable, ib: np.ndarray, rng) -> dict:
     brow = ib[17:27]
     order = np.argsort(brow[:, 0])
     bx, by = brow[order, 0], brow[order, 1]
@@ -236,7 +236,7 @@ def _lip_mask(X, ib, margin):
     return ((np.abs(X[:, 0] - c[0]) / hw) ** 4 + (np.abs(X[:, 1] - c[1]) / hh) ** 4) ** 0.25
 
 
-def _beard(ed: _Editable, ib: np.ndarray, rng, spacing: float) -> dict:
+def _beard(ed: _Editable, ib: np.ndarray, rng) -> dict:
     X = ed.clean
     style = "stubble" if rng.uniform() < 0.5 else "full"
     y_top = ib[33, 1] - rng.uniform(1.0, 4.0)  # just under the nose
@@ -408,9 +408,9 @@ def apply_artefacts(scan: Scan, V: np.ndarray, model: ICTModel, plan: dict, rng:
     if "shoulders" in plan:  # first: it sits under the neck the raw scan ends with
         details["shoulders"] = _shoulders(ed, V, model, rng, spacing)
     if "hair" in plan:
-        details["hair"] = _hair(ed, ib, rng, spacing)
+        details["hair"] = _hair(ed, ib, rng)
     if "beard" in plan:
-        details["beard"] = _beard(ed, ib, rng, spacing)
+        details["beard"] = _beard(ed, ib, rng)
     if "missing_chin" in plan:
         details["missing_chin"], y_cut, tilt = _missing_chin(ed, ib, rng)
         gone = np.isfinite(ibug).all(1) & (ibug[:, 1] < y_cut + tilt * ibug[:, 0] + 0.5)
@@ -423,13 +423,12 @@ def apply_artefacts(scan: Scan, V: np.ndarray, model: ICTModel, plan: dict, rng:
         details["colour"] = dict(plan["colour"])
     out = Scan(vertices=ed.noisy, faces=ed.faces.astype(np.int64), tri=ed.tri, bary=ed.bary, clean=ed.clean,
                pose=scan.pose, landmarks=scan.landmarks, ibug68=ibug, info=dict(scan.info))
-    for k in ("resolution",):
-        if k in details:
-            details[k]["vertices"] = int(len(out.vertices))
+    if "resolution" in details:
+        details["resolution"]["vertices"] = int(len(out.vertices))
     return out, ed.label, details
 
 
-def artefact_colours(labels: np.ndarray, rng_seed: int) -> dict:
+def artefact_colours(rng_seed: int) -> dict:
     """RGB in [0, 1] of each artefact label: hair and beard dark brown, glasses near black,
     clothing one colour drawn from ``rng_seed``."""
     rng = np.random.default_rng(rng_seed)

@@ -52,6 +52,7 @@ def subject_of(seed: int, subject: str) -> OODSubject:
 
 
 def ood_scan_rng(seed: int, subject: str, expression: str, level: int) -> np.random.Generator:
+    """The generator of everything random in one scan of the preset (module docstring)."""
     g, n = _gn(subject)
     e = EXPRESSION_CODES.index(expression)
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(4, g, n, e, level)))
@@ -126,7 +127,7 @@ def save_ood_scan(path, scan, labels: np.ndarray, colour: str | None, colour_see
         save_mesh(path, (scan.vertices, scan.faces))
         return
     skin = (scan.tri >= 0) & (labels == 0)
-    palette = artefact_colours(labels, colour_seed)
+    palette = artefact_colours(colour_seed)
     if colour == "vertex":
         rgb = np.zeros((len(scan.vertices), 3))
         rgb[skin] = skin_colour(material_positions(scan.tri[skin], scan.bary[skin]))
