@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from .. import _core
 from ..errors import RegistrationError
 from ..geometry.mesh import Mesh
 from ..options import resolve
@@ -168,9 +169,11 @@ def _fit_expression_multistart(template, transform, mesh, landmarks, jaw_starts,
             return fit, _lower_face_chamfer(template, fit.vertices, mesh)
 
         # The starts are independent: one thread each (numpy and the Rust kernels release the
-        # GIL; one register(): expression fit 0.54-0.65 s vs 0.7-1.0 s one after the other).
+        # GIL; one register(): expression fit 0.54-0.65 s vs 0.7-1.0 s one after the other),
+        # but no more threads than facecorr's pool has (a batch worker sharing the cores with
+        # others runs them one after the other: the same fits, without oversubscription).
         t0 = time.perf_counter()
-        with ThreadPoolExecutor(max_workers=len(jaw_starts)) as pool:
+        with ThreadPoolExecutor(max_workers=max(1, min(len(jaw_starts), _core.n_threads()))) as pool:
             fits = list(pool.map(fit_from, jaw_starts))
         best = min(fits, key=lambda fs: fs[1])[0]
         done = len(best.rounds)
