@@ -72,6 +72,37 @@ impl KdTree {
             .collect();
         PyList::new(py, items)
     }
+
+    /// (count (Q,) int64, sums (Q, C)): per query, the points within distance <= r and the sum
+    /// of their rows of `values` (N, C).
+    fn ball_sums<'py>(
+        &self,
+        py: Python<'py>,
+        q: PyReadonlyArray2<'py, f64>,
+        r: f64,
+        values: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyArray2<f64>>)> {
+        if !r.is_finite() || r < 0.0 {
+            return Err(value_err("r must be a finite non-negative number"));
+        }
+        let qs = points3(&q, "query points")?;
+        let v = values.as_array();
+        if v.nrows() != self.inner.len() {
+            return Err(value_err(format!(
+                "values must have one row per tree point ({}), got shape {:?}",
+                self.inner.len(),
+                v.shape()
+            )));
+        }
+        let c = v.ncols();
+        let flat: Vec<f64> = v.iter().copied().collect();
+        let nq = qs.len();
+        let t = self.inner.clone();
+        let (n, s) = run(py, "KdTree.ball_sums", move || t.ball_sums(&qs, r, &flat, c))?;
+        let n: Vec<i64> = n.into_iter().map(|x| x as i64).collect();
+        let s = ndarray::Array2::from_shape_vec((nq, c), s).expect("shape");
+        Ok((ndarray::Array1::from(n).into_pyarray(py), s.into_pyarray(py)))
+    }
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
