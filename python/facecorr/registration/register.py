@@ -74,9 +74,9 @@ class RegistrationResult:
             out.append(f"fit_rms_{rms:.1f}mm")
         beta = np.asarray(self.details.get("identity_weights", []), dtype=np.float64)
         if len(beta):
-            from scipy.special import chdtrc  # the χ² tail
+            from ..chi2 import chi2_sf  # the χ² tail (scipy.special's chdtrc, without its import)
 
-            if chdtrc(len(beta), float(beta @ beta)) < IMPLAUSIBLE_IDENTITY_P:
+            if chi2_sf(len(beta), float(beta @ beta)) < IMPLAUSIBLE_IDENTITY_P:
                 out.append(f"identity_chi2_{float(beta @ beta):.0f}_of_{len(beta)}")
         return out
 
