@@ -173,9 +173,9 @@ def _read_trimesh(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray, Appeara
 def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, Appearance]:
     """Raw (V, F, appearance) of a PLY. The common layouts (binary either byte order or ASCII; a
     vertex element with x y z, optional uchar colours; a face element of triangles or quads) are
-    read by the Rust fast path (:func:`facecorr._core.read_ply`: ~20x faster, and no trimesh and
-    scipy imports); anything else, broken files included, by trimesh exactly as before (so the
-    same mesh, and the same error)."""
+    read by the Rust fast path (:func:`facecorr._core.read_ply`: a command reading a PLY no
+    longer imports trimesh, and with it scipy; the read itself is ~2x faster); anything else,
+    broken files included, by trimesh exactly as before (so the same mesh, and the same error)."""
     from .. import _core
 
     _check_ply(path)
