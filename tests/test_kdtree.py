@@ -70,6 +70,22 @@ def test_ball_sums_are_the_csr_product_bitwise(cloud):
     np.testing.assert_array_equal(sums, member @ vals)  # exact: same additions in the same order
 
 
+def test_query_hinted_is_the_nearest_point(cloud):
+    """Hinted nearest-point queries give cKDTree's answer whatever the hints (good, bad, none)."""
+    P, Q = cloud
+    far = np.vstack([Q, Q * 7.0 + 30.0])
+    dr, ir = cKDTree(P).query(far)
+    t = KDTree(P)
+    rng = np.random.default_rng(1)
+    for hint in (ir, rng.integers(0, len(P), len(far)), np.full(len(far), -1), np.full(len(far), len(P))):
+        d, i = t.query_hinted(far, hint)
+        np.testing.assert_array_equal(i, ir)
+        np.testing.assert_array_equal(d, t.query(far)[0])
+        np.testing.assert_allclose(d, dr, rtol=1e-12)
+    with pytest.raises(ValueError, match="hint must be"):
+        t.query_hinted(far, ir[:-1])
+
+
 def test_ball_sums_bad_input(cloud):
     P, Q = cloud
     t = KDTree(P)

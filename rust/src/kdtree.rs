@@ -104,6 +104,47 @@ impl KdTree3 {
         (dist, idx)
     }
 
+    /// The nearest point of every query, each searched within the distance to its `hint` (a point
+    /// index, e.g. the query's nearest point before it moved a little; `>= n`: no hint): the same
+    /// answer as [`knn`](Self::knn) with k = 1 (the true nearest point is never farther than the
+    /// hint), found with far less backtracking when the query lies off the surface. Returns
+    /// (dist (Q,), idx (Q,)).
+    pub fn nearest_hinted(&self, queries: &[[f64; 3]], hints: &[u64]) -> (Vec<f64>, Vec<u64>) {
+        assert_eq!(queries.len(), hints.len(), "one hint per query");
+        let n = self.points.len();
+        let mut dist = vec![f64::INFINITY; queries.len()];
+        let mut idx = vec![n as u64; queries.len()];
+        if n == 0 {
+            return (dist, idx);
+        }
+        dist.par_iter_mut()
+            .zip(idx.par_iter_mut())
+            .zip(queries.par_iter().zip(hints.par_iter()))
+            .with_min_len(64)
+            .for_each(|((d, i), (q, &h))| {
+                let (j, e) = if (h as usize) < n {
+                    let p = &self.points[h as usize];
+                    let b2 = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2);
+                    // the bound a hair wider than the hint's own distance (rounding), inclusive
+                    let res = self
+                        .tree
+                        .query(q)
+                        .nearest_n::<SquaredEuclidean<f64>>(NonZeroUsize::new(1).unwrap())
+                        .within(b2 * (1.0 + 1e-9) + 1e-300)
+                        .execute();
+                    match res.into_iter().next() {
+                        Some(r) => (r.item as usize, r.distance.sqrt()),
+                        None => self.nearest(q),
+                    }
+                } else {
+                    self.nearest(q)
+                };
+                *d = e;
+                *i = j as u64;
+            });
+        (dist, idx)
+    }
+
     /// Indices of all points with distance `<= r` of one query, sorted ascending.
     pub fn within_one(&self, q: &[f64; 3], r: f64) -> Vec<u64> {
         if self.points.is_empty() || r < 0.0 {
@@ -250,6 +291,24 @@ mod tests {
         let (n0, s0) = t.ball_sums(&q, 0.2, &[], 0);
         assert_eq!(n0, n);
         assert!(s0.is_empty());
+    }
+
+    #[test]
+    fn hinted_nearest_is_the_nearest() {
+        let p = lcg_points(5000, 5);
+        let t = KdTree3::new(p.clone()).unwrap();
+        // queries near and far off the cloud, hints good, bad and missing
+        let q: Vec<[f64; 3]> = lcg_points(400, 6).into_iter().enumerate()
+            .map(|(k, x)| if k % 2 == 0 { x } else { [x[0] * 9.0 - 4.0, x[1] * 9.0 - 4.0, x[2] * 9.0 - 4.0] })
+            .collect();
+        let (d0, i0) = t.knn(&q, 1, f64::INFINITY);
+        for hint in [0u64, 17, 4999, 5000, u64::MAX] {
+            let (d, i) = t.nearest_hinted(&q, &vec![hint; q.len()]);
+            assert_eq!(i, i0);
+            assert_eq!(d, d0);
+        }
+        let (d, i) = t.nearest_hinted(&q, &i0);
+        assert_eq!((d, i), (d0, i0.clone()));
     }
 
     #[test]

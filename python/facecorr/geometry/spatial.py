@@ -109,6 +109,21 @@ class KDTree:
         out = self._tree.query_ball_point(qa, r)
         return out[0] if single else out
 
+    def query_hinted(self, q, hint):
+        """The nearest point of each query, as ``query(q, k=1)`` (the same distances and indices),
+        searched within the distance to ``hint`` (Q,) int: a point index per query, e.g. its
+        nearest point before the query moved a little (an ICP step); negative or >= n: no hint.
+        Off the surface, where an unbounded search backtracks through much of the tree, a good
+        hint makes the query several times cheaper.
+
+        Returns dist (Q,) float64, idx (Q,) int64.
+        """
+        qa = _as_points(np.asarray(q, dtype=np.float64), "query points")
+        h = np.asarray(hint)
+        if h.shape != (len(qa),) or not np.issubdtype(h.dtype, np.integer):
+            raise ValueError(f"hint must be ({len(qa)},) integers, got {h.dtype} {h.shape}")
+        return self._tree.query_hinted(qa, np.ascontiguousarray(h, dtype=np.int64))
+
     def ball_sums(self, q, r: float, values):
         """Per query, the number of tree points within distance ``r`` (inclusive, as
         :meth:`query_ball_point`) and the sums of their rows of ``values``, without listing the

@@ -53,6 +53,25 @@ impl KdTree {
         Ok((d.into_pyarray(py), i.into_pyarray(py)))
     }
 
+    /// (dist (Q,), idx (Q,) int64): the nearest point of each query, searched within the distance
+    /// to its hint (a point index; out of range: no hint). The same answer as query(k=1).
+    fn query_hinted<'py>(
+        &self,
+        py: Python<'py>,
+        q: PyReadonlyArray2<'py, f64>,
+        hint: numpy::PyReadonlyArray1<'py, i64>,
+    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<i64>>)> {
+        let qs = points3(&q, "query points")?;
+        let h: Vec<u64> = hint.as_array().iter().map(|&x| if x < 0 { u64::MAX } else { x as u64 }).collect();
+        if h.len() != qs.len() {
+            return Err(value_err(format!("hint must have one index per query point ({}), got {}", qs.len(), h.len())));
+        }
+        let t = self.inner.clone();
+        let (d, i) = run(py, "KdTree.query_hinted", move || t.nearest_hinted(&qs, &h))?;
+        let i: Vec<i64> = i.into_iter().map(|x| x as i64).collect();
+        Ok((ndarray::Array1::from(d).into_pyarray(py), ndarray::Array1::from(i).into_pyarray(py)))
+    }
+
     /// List (Q) of sorted int64 arrays of the points with distance <= r.
     fn query_ball_point<'py>(
         &self,
