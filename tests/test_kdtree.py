@@ -54,6 +54,49 @@ def test_query_ball_point(cloud):
         np.testing.assert_array_equal(g, np.sort(r))
 
 
+def test_ball_sums_are_the_csr_product_bitwise(cloud):
+    """ball_sums == (ball-membership CSR matrix from cKDTree) @ values, bit for bit, and the counts."""
+    from scipy import sparse
+
+    P, Q = cloud
+    vals = np.column_stack([P, P[:, 0] * P[:, 1], np.sin(P[:, 2])])
+    count, sums = KDTree(P).ball_sums(Q[:300], 5.0, vals)
+    balls = [np.sort(b) for b in cKDTree(P).query_ball_point(Q[:300], 5.0)]
+    n = np.array([len(b) for b in balls])
+    member = sparse.csr_matrix((np.ones(int(n.sum())), np.concatenate(balls), np.concatenate([[0], np.cumsum(n)])),
+                               shape=(300, len(P)))
+    np.testing.assert_array_equal(count, n)
+    assert count.dtype == np.int64 and sums.shape == (300, 5) and n.sum() > 300
+    np.testing.assert_array_equal(sums, member @ vals)  # exact: same additions in the same order
+
+
+def test_query_hinted_is_the_nearest_point(cloud):
+    """Hinted nearest-point queries give cKDTree's answer whatever the hints (good, bad, none)."""
+    P, Q = cloud
+    far = np.vstack([Q, Q * 7.0 + 30.0])
+    dr, ir = cKDTree(P).query(far)
+    t = KDTree(P)
+    rng = np.random.default_rng(1)
+    for hint in (ir, rng.integers(0, len(P), len(far)), np.full(len(far), -1), np.full(len(far), len(P))):
+        d, i = t.query_hinted(far, hint)
+        np.testing.assert_array_equal(i, ir)
+        np.testing.assert_array_equal(d, t.query(far)[0])
+        np.testing.assert_allclose(d, dr, rtol=1e-12)
+    with pytest.raises(ValueError, match="hint must be"):
+        t.query_hinted(far, ir[:-1])
+
+
+def test_ball_sums_bad_input(cloud):
+    P, Q = cloud
+    t = KDTree(P)
+    with pytest.raises(ValueError, match="values must have shape"):
+        t.ball_sums(Q, 1.0, np.ones((len(P) - 1, 2)))
+    with pytest.raises(ValueError, match="r must be"):
+        t.ball_sums(Q, -1.0, np.ones((len(P), 2)))
+    c, s = t.ball_sums(Q[:3], 0.0, np.ones((len(P), 0)))
+    assert s.shape == (3, 0) and c.shape == (3,)
+
+
 def test_single_point_float32_and_attributes(cloud):
     P, Q = cloud
     t = KDTree(P.astype(np.float32))

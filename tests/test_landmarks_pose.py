@@ -96,3 +96,32 @@ def test_batch_icp_equals_looped_trimmed_icp(use_normals):
     # and the best refined pose is the true one
     (r, t, rms_best), *_ = fit_poses(pts, tree, starts, n_best=2, normals=normals)
     np.testing.assert_allclose(r, rot, atol=0.02)
+
+
+def test_hinted_queries_give_the_same_poses_as_plain_queries():
+    """pose.py searches each point within its last match (KDTree.query_hinted): the poses are
+    exactly those of plain nearest-point queries (the same tree without hints)."""
+    from facecorr.geometry.spatial import KDTree
+    from facecorr.landmarks.pose import batch_icp, fit_poses
+
+    rot = Rotation.random(random_state=5).as_matrix()
+    clean = _bumpy_face(90)
+    normals = _grid_normals(clean, 90) @ rot.T
+    scan = clean @ rot.T + np.array([5.0, -20.0, 40.0])
+    tip = np.array([0.0, 0.0, 25.0])
+    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + [5.0, -20.0, 40.0], rot[:, 2], 12)
+    pts = _bumpy_face()[::5]
+    tree = KDTree(scan)
+
+    class Plain:  # the same tree, taking no hints
+        data, query = tree.data, tree.query
+
+    a = batch_icp(pts, tree, starts, iters=6, normals=normals)
+    b = batch_icp(pts, Plain(), starts, iters=6, normals=normals)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+    pa = fit_poses(pts, tree, starts, n_best=2, normals=normals)
+    pb = fit_poses(pts, Plain(), starts, n_best=2, normals=normals)
+    for x, y in zip(pa, pb):
+        for u, v in zip(x, y):
+            np.testing.assert_array_equal(u, v)

@@ -64,3 +64,36 @@ def test_invariant_to_pose(seed):
     c0 = nose_tip_candidates(p, n, k=1, spacing=0.0)[0]
     c1 = nose_tip_candidates(p @ r.T + t, n @ r.T, k=1, spacing=0.0)[0]
     assert c0[0] == c1[0]
+
+
+def _ball_protrusion_sparse(points, normals, radius):
+    """The previous implementation (scipy CSR product with the ball-membership matrix), kept as the
+    reference of the Rust ball sums: heights, normals and counts must be bitwise the same."""
+    from scipy import sparse
+    from scipy.spatial import cKDTree
+
+    balls = [np.sort(b) for b in cKDTree(points).query_ball_point(points, radius)]
+    count = np.array([len(b) for b in balls])
+    member = sparse.csr_matrix((np.ones(int(count.sum())), np.concatenate(balls),
+                                np.concatenate([[0], np.cumsum(count)])), shape=(len(points), len(points)))
+    x, y, z = (points - points.mean(axis=0)).T
+    sums = member @ np.stack([x, y, z, x * x, x * y, x * z, y * y, y * z, z * z], axis=1)
+    centroid = sums[:, :3] / count[:, None]
+    second = sums[:, 3:] / count[:, None]
+    cov = np.empty((len(points), 3, 3))
+    for (a, b), col in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), range(6)):
+        cov[:, a, b] = cov[:, b, a] = second[:, col] - centroid[:, a] * centroid[:, b]
+    _, vec = np.linalg.eigh(cov)
+    pn = vec[:, :, 0]
+    pn *= np.where(np.einsum("ij,ij->i", pn, normals) < 0, -1.0, 1.0)[:, None]
+    return np.einsum("ij,ij->i", (points - points.mean(axis=0)) - centroid, pn), pn, count
+
+
+def test_same_as_the_sparse_product_on_a_noisy_surface():
+    p, n = _grid(n=45)
+    p = p + np.random.default_rng(3).normal(0, 0.3, p.shape)
+    h, pn, cnt = ball_protrusion(p, n, 21.3)
+    h0, pn0, cnt0 = _ball_protrusion_sparse(p, n, 21.3)
+    np.testing.assert_array_equal(cnt, cnt0)
+    np.testing.assert_array_equal(h, h0)
+    np.testing.assert_array_equal(pn, pn0)

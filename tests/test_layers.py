@@ -10,7 +10,7 @@ PKG = Path(__file__).resolve().parents[1] / "python" / "facecorr"
 
 #: floor of each top-level part of the package (facecorr/__init__.py's table)
 FLOORS = {
-    "errors": 0, "names": 0, "options": 0, "threads": 0, "_core": 0,
+    "errors": 0, "names": 0, "options": 0, "threads": 0, "chi2": 0, "_core": 0,
     "geometry": 1,
     "io": 2,
     "template": 3, "synth": 3, "render": 3,

@@ -186,3 +186,21 @@ def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch, f
     assert "refit_wider_search_after_implausible_fit" in res.flags
     assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
     assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
+
+
+def test_lower_face_chamfer_is_the_full_query_value():
+    """The jaw-start choice queries only the scan vertices in the lower face's box grown by 15 mm:
+    the value is exactly that of querying every scan vertex (the previous code, here as reference)."""
+    from facecorr.geometry.spatial import KDTree
+    from facecorr.registration.register import _lower_face_chamfer
+
+    tpl = load_template()
+    mesh, _, gt, _ = make_scan(2)
+    lower = np.asarray(tpl.regions) > 0
+    for shift in (0.0, 4.0, 40.0):  # on the face, a little off, far off (nothing within 15 mm)
+        v = gt + shift
+        d_ts = np.sort(np.asarray(mesh.kdtree.query(v[lower])[0]))
+        d_st, i_st = KDTree(v).query(mesh.vertices)
+        d_st = np.sort(d_st[lower[i_st] & (d_st <= 15.0)])
+        trim = lambda d: float(d[: max(1, int(0.9 * len(d)))].mean()) if len(d) else np.inf  # noqa: E731
+        assert _lower_face_chamfer(tpl, v, mesh) == trim(d_ts) + trim(d_st)

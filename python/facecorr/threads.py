@@ -9,6 +9,11 @@ cancelled and running workers terminated (SIGTERM: a job unwinds, so atomic writ
 temporary files; then SIGKILL after a grace period). Workers ignore SIGINT (the main process
 decides) and die with the main process even when it is killed (Linux ``PR_SET_PDEATHSIG``, and a
 thread that watches the parent pid everywhere).
+
+Threads: each worker gets the machine's cores shared between the workers (:func:`worker_threads`:
+``FACECORR_THREADS`` if the user set it, else cores // workers, at least 1) for the Rust pool, the
+BLAS and OpenMP pools (set in the worker before any kernel runs), so ``--workers 2`` on 2 cores
+runs 2 threads, not 2 processes x (2 Rust + 2 BLAS) threads (BENCHMARKS.md, "Throughput").
 """
 
 import multiprocessing
@@ -26,6 +31,44 @@ _in_job = False
 
 class _WorkerTerminated(BaseException):
     """Raised in a worker's job by SIGTERM (a BaseException: job code catching Exception lets it pass)."""
+
+
+#: The environment variables that size the BLAS / OpenMP pools of libraries loaded later.
+_BLAS_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def machine_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the OS tells it, else the CPU count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def worker_threads(workers: int) -> int:
+    """Threads each of ``workers`` worker processes should use: ``FACECORR_THREADS`` when the user
+    set it to a positive integer, else the cores shared between the workers (at least 1)."""
+    given = os.environ.get("FACECORR_THREADS", "").strip()
+    if given.isdigit() and int(given) > 0:
+        return int(given)
+    return max(1, machine_cores() // max(1, int(workers)))
+
+
+def limit_threads(n: int) -> None:
+    """Size this process's thread pools to ``n``: facecorr's Rust pool (``FACECORR_THREADS``, read
+    when the pool starts, so before the first kernel call), the BLAS / OpenMP pools of libraries
+    already loaded (threadpoolctl) and of those loaded later (their environment variables). A
+    variable the user set is left alone."""
+    n = max(1, int(n))
+    os.environ.setdefault("FACECORR_THREADS", str(n))
+    for k in _BLAS_ENV:
+        os.environ.setdefault(k, str(n))
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=n)
+    except Exception:  # noqa: BLE001 - only a speed matter: never fail a worker over it
+        pass
 
 
 def spawn_context():
@@ -48,8 +91,11 @@ def _watch_parent(parent_pid: int) -> None:
             os._exit(128 + signal.SIGTERM)
 
 
-def _worker_init(parent_pid: int) -> None:
-    """In each worker: SIGINT ignored, SIGTERM unwinds the job, die with the parent."""
+def _worker_init(parent_pid: int, threads: int | None = None) -> None:
+    """In each worker: SIGINT ignored, SIGTERM unwinds the job, die with the parent; ``threads``
+    sizes its thread pools (:func:`limit_threads`)."""
+    if threads is not None:
+        limit_threads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _on_sigterm)
     if sys.platform.startswith("linux"):
@@ -102,8 +148,9 @@ def process_iter(fn, jobs, *, workers=2, desc="working", progress=True, ordered=
 
     ``ordered`` yields in job order, else as each finishes (a batch can record results as they
     come). ``fn`` must be a module-level function (picklable); with one worker or one job it runs
-    here. Closing the generator early (or an exception, Ctrl-C, in it) cancels the queued jobs
-    and terminates the running workers before it returns.
+    here (with this process's threads), else each worker gets :func:`worker_threads` threads.
+    Closing the generator early (or an exception, Ctrl-C, in it) cancels the queued jobs and
+    terminates the running workers before it returns.
     """
     from tqdm import tqdm
 
@@ -112,8 +159,9 @@ def process_iter(fn, jobs, *, workers=2, desc="working", progress=True, ordered=
         if workers > 1 and len(jobs) > 1:
             from concurrent.futures import ProcessPoolExecutor, as_completed
 
-            ex = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=spawn_context(),
-                                     initializer=_worker_init, initargs=(os.getpid(),))
+            n_proc = min(workers, len(jobs))
+            ex = ProcessPoolExecutor(max_workers=n_proc, mp_context=spawn_context(), initializer=_worker_init,
+                                     initargs=(os.getpid(), worker_threads(n_proc)))
             finished = False
             try:
                 futures = [ex.submit(_call, fn, j) for j in jobs]

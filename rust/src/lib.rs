@@ -16,6 +16,7 @@ pub mod raster;
 pub mod lbfgs;
 pub mod shape_fit;
 pub mod blend;
+pub mod ply;
 #[doc(hidden)]
 pub mod fixtures;
 

@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import FacecorrError
 from ..io.atomic import atomic_path
 from ..names import LANDMARK_NAMES
-from ..template import REGION_NAMES, Template, load_template, visible_points
+from ..template import REGION_NAMES, Template, load_template
 
 #: Region colours for drawings (upper, chin, mouth).
 REGION_COLORS = np.array([[0.78, 0.80, 0.86], [0.95, 0.62, 0.25], [0.85, 0.25, 0.30]])
@@ -51,6 +51,8 @@ def template_contract(t: Template) -> dict:
 
 def _landmark_overlay(ax, t: Template, rotation):
     p = t.graph_points @ rotation.T
+    from ..template import visible_points  # the builder (scipy): only when drawing, not at every command's start
+
     visible = visible_points(t.vertices, t.faces, t.graph_points, rotation)
     for i, j in t.graph_edges:
         if visible[i] and visible[j]:

@@ -109,6 +109,45 @@ class KDTree:
         out = self._tree.query_ball_point(qa, r)
         return out[0] if single else out
 
+    def query_hinted(self, q, hint):
+        """The nearest point of each query, as ``query(q, k=1)`` (the same distances and indices),
+        searched within the distance to ``hint`` (Q,) int: a point index per query, e.g. its
+        nearest point before the query moved a little (an ICP step); negative or >= n: no hint.
+        Off the surface, where an unbounded search backtracks through much of the tree, a good
+        hint makes the query several times cheaper.
+
+        Returns dist (Q,) float64, idx (Q,) int64.
+        """
+        qa = _as_points(np.asarray(q, dtype=np.float64), "query points")
+        h = np.asarray(hint)
+        if h.shape != (len(qa),) or not np.issubdtype(h.dtype, np.integer):
+            raise ValueError(f"hint must be ({len(qa)},) integers, got {h.dtype} {h.shape}")
+        return self._tree.query_hinted(qa, np.ascontiguousarray(h, dtype=np.int64))
+
+    def ball_sums(self, q, r: float, values):
+        """Per query, the number of tree points within distance ``r`` (inclusive, as
+        :meth:`query_ball_point`) and the sums of their rows of ``values``, without listing the
+        balls: the product of the ball-membership matrix with ``values`` (bitwise: each sum is
+        added in ascending point order from 0, as scipy's CSR product does).
+
+        Parameters
+        ----------
+        q : (Q, 3) array_like of float; r : float >= 0;
+        values : (N, C) array_like of float, one row per tree point.
+
+        Returns
+        -------
+        count : (Q,) int64; sums : (Q, C) float64.
+        """
+        r = float(r)
+        if not math.isfinite(r) or r < 0:
+            raise ValueError(f"r must be a finite number >= 0, got {r!r}")
+        qa = _as_points(np.asarray(q, dtype=np.float64), "query points")
+        v = np.asarray(values, dtype=np.float64)
+        if v.ndim != 2 or len(v) != self.n:
+            raise ValueError(f"values must have shape ({self.n}, C), got {v.shape}")
+        return self._tree.ball_sums(qa, r, v)
+
     def __repr__(self) -> str:
         return f"KDTree(n={self.n})"
 

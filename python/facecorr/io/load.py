@@ -3,7 +3,8 @@
 * OBJ and OFF are read by our own readers (:func:`facecorr.io.obj.read_obj`, :func:`_read_off`:
   file order kept, OBJ relative indices, CRLF, a UTF-8 BOM and non-UTF-8 bytes in comments
   handled, non-integer face indices refused).
-* PLY, STL, GLB are read through trimesh with ``process=False``, so the file's vertex order is
+* PLY in its common layouts is read by a Rust fast path (:func:`_read_ply`); other PLY files,
+  STL and GLB are read through trimesh with ``process=False``, so the file's vertex order is
   kept; every trimesh failure is translated into a one-line :class:`~facecorr.errors.MeshFileError`.
   Broken binary STL files, which trimesh reads silently, are checked first.
 * Files that are really gzip/zip/PNG/JPEG/... (a misnamed download) are refused by name.
@@ -167,6 +168,25 @@ def _read_trimesh(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray, Appeara
     V = np.concatenate(Vs) if Vs else np.zeros((0, 3))
     F = np.concatenate(Fs) if Fs else np.zeros((0, 3), np.int64)
     return V, F, _trimesh_appearance(parts, Fs, path, fmt)
+
+
+def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray, Appearance]:
+    """Raw (V, F, appearance) of a PLY. The common layouts (binary either byte order or ASCII; a
+    vertex element with x y z, optional uchar colours; a face element of triangles or quads) are
+    read by the Rust fast path (:func:`facecorr._core.read_ply`: a command reading a PLY no
+    longer imports trimesh, and with it scipy; the read itself is ~2x faster); anything else,
+    broken files included, by trimesh exactly as before (so the same mesh, and the same error)."""
+    from .. import _core
+
+    _check_ply(path)
+    fast = _core.read_ply(str(path))
+    if fast is None:
+        return _read_trimesh(path, "ply")
+    V, F, colours = fast
+    app = Appearance()
+    if colours is not None:
+        app.vertex_colors = colours[:, :3].astype(np.float64) / 255.0
+    return V, F, app
 
 
 def _ply_texture_file(path: Path) -> Path | None:
@@ -531,6 +551,8 @@ def load_mesh(path, units: str = "auto", *, merge_duplicates: bool = True) -> Me
     elif fmt == "off":
         V, F = _read_off(path)
         app = Appearance()
+    elif fmt == "ply":
+        V, F, app = _read_ply(path)
     else:
         V, F, app = _read_trimesh(path, fmt)
     n_raw, m_raw = len(V), len(F)

@@ -30,6 +30,14 @@ def normal_sweep_starts(tip_tpl: np.ndarray, normal_tpl: np.ndarray, tip_scan: n
     return out
 
 
+def _nearest(tree, q, hint):
+    """``tree.query(q)`` (nearest points), searched within each point's last match ``hint`` when
+    the tree takes hints (:meth:`facecorr.spatial.KDTree.query_hinted`: the same matches)."""
+    if hint is not None and hasattr(tree, "query_hinted"):
+        return tree.query_hinted(q, hint)
+    return tree.query(q)
+
+
 def _point_to_plane_step(p: np.ndarray, q: np.ndarray, n: np.ndarray):
     """Linearised point-to-plane update (dR, dt) minimising sum ((dR p + dt - q) . n)^2."""
     a = np.hstack([np.cross(p, n), n])  # (k, 6): rows [p x n, n]
@@ -52,9 +60,11 @@ def trimmed_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters: i
     scan = tree.data
     n_keep = max(6, int(keep * len(points)))
     prev = np.inf
+    idx = None
     for _ in range(iters):
         moved = points @ r.T + t
-        d, idx = tree.query(moved)
+        # each point's match of the last step bounds its search (the same matches, faster)
+        d, idx = _nearest(tree, moved, idx)
         idx = np.asarray(idx)
         order = np.argsort(d)[:n_keep]
         rms = float(np.sqrt(np.mean(d[order] ** 2)))
@@ -67,7 +77,7 @@ def trimmed_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters: i
             dr, dt = _point_to_plane_step(moved[order], scan[idx[order]], normals[idx[order]])
             r, t = dr @ r, dr @ t + dt
     moved = points @ r.T + t
-    d, _ = tree.query(moved)
+    d, _ = _nearest(tree, moved, idx)
     d = np.asarray(d)
     rms = float(np.sqrt(np.mean(np.sort(d)[:n_keep] ** 2)))
     return r, t, rms, d
@@ -100,9 +110,13 @@ def batch_icp(points: np.ndarray, tree, starts, iters: int = 8, keep: float = 0.
     ts = np.array([np.asarray(t, float) for _, t in starts])
     n_s, n_p = len(rs), len(points)
     n_keep = max(6, int(keep * n_p))
+    idx = None
     for it in range(iters + 1):
         moved = np.einsum("sij,pj->spi", rs, points) + ts[:, None, :]
-        d, idx = tree.query(moved.reshape(-1, 3))
+        # most starts lie off the surface, where a nearest-point search backtracks far; each
+        # point's match of the last step bounds it (the same matches, cheaper)
+        flat = moved.reshape(-1, 3)
+        d, idx = _nearest(tree, flat, None if idx is None else idx.reshape(-1))
         d, idx = np.asarray(d).reshape(n_s, n_p), np.asarray(idx).reshape(n_s, n_p)
         order = np.argpartition(d, n_keep - 1, axis=1)[:, :n_keep]
         rms = np.sqrt(np.mean(np.take_along_axis(d, order, 1) ** 2, axis=1))

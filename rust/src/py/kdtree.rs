@@ -53,6 +53,25 @@ impl KdTree {
         Ok((d.into_pyarray(py), i.into_pyarray(py)))
     }
 
+    /// (dist (Q,), idx (Q,) int64): the nearest point of each query, searched within the distance
+    /// to its hint (a point index; out of range: no hint). The same answer as query(k=1).
+    fn query_hinted<'py>(
+        &self,
+        py: Python<'py>,
+        q: PyReadonlyArray2<'py, f64>,
+        hint: numpy::PyReadonlyArray1<'py, i64>,
+    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<i64>>)> {
+        let qs = points3(&q, "query points")?;
+        let h: Vec<u64> = hint.as_array().iter().map(|&x| if x < 0 { u64::MAX } else { x as u64 }).collect();
+        if h.len() != qs.len() {
+            return Err(value_err(format!("hint must have one index per query point ({}), got {}", qs.len(), h.len())));
+        }
+        let t = self.inner.clone();
+        let (d, i) = run(py, "KdTree.query_hinted", move || t.nearest_hinted(&qs, &h))?;
+        let i: Vec<i64> = i.into_iter().map(|x| x as i64).collect();
+        Ok((ndarray::Array1::from(d).into_pyarray(py), ndarray::Array1::from(i).into_pyarray(py)))
+    }
+
     /// List (Q) of sorted int64 arrays of the points with distance <= r.
     fn query_ball_point<'py>(
         &self,
@@ -71,6 +90,37 @@ impl KdTree {
             .map(|v| v.into_iter().map(|x| x as i64).collect::<Vec<_>>().into_pyarray(py))
             .collect();
         PyList::new(py, items)
+    }
+
+    /// (count (Q,) int64, sums (Q, C)): per query, the points within distance <= r and the sum
+    /// of their rows of `values` (N, C).
+    fn ball_sums<'py>(
+        &self,
+        py: Python<'py>,
+        q: PyReadonlyArray2<'py, f64>,
+        r: f64,
+        values: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyArray2<f64>>)> {
+        if !r.is_finite() || r < 0.0 {
+            return Err(value_err("r must be a finite non-negative number"));
+        }
+        let qs = points3(&q, "query points")?;
+        let v = values.as_array();
+        if v.nrows() != self.inner.len() {
+            return Err(value_err(format!(
+                "values must have one row per tree point ({}), got shape {:?}",
+                self.inner.len(),
+                v.shape()
+            )));
+        }
+        let c = v.ncols();
+        let flat: Vec<f64> = v.iter().copied().collect();
+        let nq = qs.len();
+        let t = self.inner.clone();
+        let (n, s) = run(py, "KdTree.ball_sums", move || t.ball_sums(&qs, r, &flat, c))?;
+        let n: Vec<i64> = n.into_iter().map(|x| x as i64).collect();
+        let s = ndarray::Array2::from_shape_vec((nq, c), s).expect("shape");
+        Ok((ndarray::Array1::from(n).into_pyarray(py), s.into_pyarray(py)))
     }
 }
 

@@ -15,6 +15,7 @@ mod curvature;
 mod raster;
 mod shape_fit;
 mod blend;
+mod ply;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -29,5 +30,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     raster::register(m)?;
     shape_fit::register(m)?;
     blend::register(m)?;
+    ply::register(m)?;
     Ok(())
 }
