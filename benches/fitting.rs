@@ -32,6 +32,7 @@ fn problem() -> (Vec<[f64; 3]>, Adjacency, Correspondences) {
         normal: vec![[0.0, 0.0, 1.0]; v.len()],
         weight: (0..v.len()).map(|i| if i % 9 == 0 { 0.0 } else { 1.0 }).collect(),
         anchor: vec![None; v.len()],
+        tangent: Vec::new(),
     };
     (v, adj, corr)
 }
@@ -39,7 +40,7 @@ fn problem() -> (Vec<[f64; 3]>, Adjacency, Correspondences) {
 fn bench_shape(c: &mut Criterion) {
     let (v, adj, corr) = problem();
     let n = v.len();
-    let w = Weights { data: 1.0, smooth: 1250.0, rigid: 0.625, landmark: 0.0 };
+    let w = Weights { data: 1.0, smooth: 1250.0, rigid: 0.625, landmark: 0.0, tangential: 0.0 };
     let x: Vec<f64> = (0..n).flat_map(|_| IDENTITY).collect();
     let mut grad = vec![0.0; 12 * n];
     let mut g = c.benchmark_group("shape_fit");

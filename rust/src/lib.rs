@@ -9,6 +9,7 @@ pub mod vec3;
 pub mod mesh;
 pub mod kdtree;
 pub mod surface;
+pub mod soft_match;
 pub mod geodesic;
 pub mod fingerprint;
 pub mod curvature;

@@ -94,6 +94,14 @@ pub struct ShapeFitOptions {
     pub template_weight: Vec<f64>,
     /// Use the block-diagonal preconditioner ([`BlockPreconditioner`]) in L-BFGS.
     pub precondition: bool,
+    /// Normal-aware soft matches ([`crate::soft_match`]; 0 = off): λ (mm) of the normal
+    /// difference in the match cost, the temperature τ (mm) and the ball radius (mm).
+    pub feature_lambda: f64,
+    pub feature_tau: f64,
+    pub feature_radius: f64,
+    /// Weight β of the tangential term w_i β ‖P_i (s_i − p̃_i)‖² (P_i = I − n_i n_iᵀ, s_i the soft
+    /// target) beside the point-to-plane residual; used when `feature_lambda` > 0.
+    pub w_tangential: f64,
 }
 
 impl Default for ShapeFitOptions {
@@ -118,6 +126,10 @@ impl Default for ShapeFitOptions {
             w_landmark: 0.0,
             template_weight: Vec::new(),
             precondition: true,
+            feature_lambda: 0.0,
+            feature_tau: 2.0,
+            feature_radius: 7.0,
+            w_tangential: 0.5,
         }
     }
 }
@@ -200,6 +212,8 @@ pub struct Correspondences {
     pub weight: Vec<f64>,
     /// Per vertex: Some(scan position) if the vertex is a landmark anchor (usually 8 of them).
     pub anchor: Vec<Option<[f64; 3]>>,
+    /// Per vertex the soft target s_i of the tangential term (empty = no tangential term).
+    pub tangent: Vec<[f64; 3]>,
 }
 
 /// Energy weights of one solve.
@@ -209,6 +223,8 @@ pub struct Weights {
     pub smooth: f64,
     pub rigid: f64,
     pub landmark: f64,
+    /// β of the tangential term (relative to the data weight; 0 = none).
+    pub tangential: f64,
 }
 
 /// Energy parts of [`energy_gradient`]: the weighted total and the unweighted terms.
@@ -265,6 +281,20 @@ pub fn energy_gradient(
                 for k in 0..3 {
                     for c in 0..4 {
                         g[4 * k + c] += s * n[k] * ph[c];
+                    }
+                }
+                // Tangential: β ‖P (s − p̃)‖², P = I − n nᵀ; dE/dp̃ = −2 β P (s − p̃).
+                if w.tangential != 0.0 {
+                    if let Some(st) = corr.tangent.get(i) {
+                        let d = sub(*st, pt);
+                        let u = sub(d, crate::vec3::scale(*n, dot(d, *n)));
+                        e_data += wi * w.tangential * dot(u, u);
+                        let s2 = -2.0 * w.data * wi * w.tangential;
+                        for k in 0..3 {
+                            for c in 0..4 {
+                                g[4 * k + c] += s2 * u[k] * ph[c];
+                            }
+                        }
                     }
                 }
             }
@@ -357,7 +387,14 @@ impl ScanTarget {
     pub fn correspond(&self, deformed: &[[f64; 3]], normals: &[[f64; 3]], opts: &ShapeFitOptions) -> Correspondences {
         let queries: Vec<[f64; 3]> = deformed.iter().map(|&p| add(p, self.offset)).collect();
         let sp = self.surface.closest_all(&queries, opts.surface_k);
-        let mut c = Correspondences { target: Vec::with_capacity(sp.len()), normal: Vec::with_capacity(sp.len()), weight: Vec::with_capacity(sp.len()), anchor: Vec::new() };
+        let mut c = Correspondences { target: Vec::with_capacity(sp.len()), normal: Vec::with_capacity(sp.len()), weight: Vec::with_capacity(sp.len()), anchor: Vec::new(), tangent: Vec::new() };
+        if opts.feature_lambda > 0.0 && opts.w_tangential > 0.0 {
+            let so = crate::soft_match::SoftMatchOptions { radius: opts.feature_radius, lambda: opts.feature_lambda, tau: opts.feature_tau };
+            c.tangent = crate::soft_match::soft_targets(&self.surface, &queries, normals, &sp, &so)
+                .into_iter()
+                .map(|t| sub(t, self.offset))
+                .collect();
+        }
         for (i, m) in sp.iter().enumerate() {
             let wm = match_weight(dot(m.normal, normals[i]), m.dist, m.boundary, opts.normal_angle_deg, opts.angle_band_deg,
                                   opts.max_distance, opts.distance_band, opts.reject_boundary);
@@ -413,11 +450,17 @@ impl BlockPreconditioner {
                 let ph = [p[0], p[1], p[2], 1.0];
                 let deg = (adj.offsets[i + 1] - adj.offsets[i]) as f64;
                 let anchored = matches!(corr.anchor.get(i), Some(Some(_)));
+                let tangential = if w.tangential != 0.0 && i < corr.tangent.len() { w.tangential } else { 0.0 };
                 for k in 0..3 {
                     for c in 0..4 {
                         let mut d = 2.0 * w.smooth * deg + 1e-9;
                         if c < 3 {
                             d += 4.0 * w.rigid;
+                        }
+                        if tangential != 0.0 {
+                            // the diagonal of the tangential term's block 2 β w (I − n nᵀ) ⊗ ph phᵀ
+                            let nk = corr.normal[i][k];
+                            d += 2.0 * w.data * corr.weight[i] * tangential * (1.0 - nk * nk) * ph[c] * ph[c];
                         }
                         if anchored {
                             d += 2.0 * w.landmark * ph[c] * ph[c];
@@ -514,7 +557,8 @@ pub fn fit(
     let mut pc = BlockPreconditioner { dinv: Vec::new(), z: Vec::new(), coef: Vec::new() };
     let lopts = LbfgsOptions { memory: opts.memory, max_iter: opts.max_iter, rel_tol: opts.rel_tol, grad_tol: 1e-12, ..Default::default() };
     let mut solves = Vec::new();
-    let mut w = Weights { data: opts.w_data, smooth: opts.w_smooth, rigid: opts.w_rigid, landmark: opts.w_landmark };
+    let tangential = if opts.feature_lambda > 0.0 { opts.w_tangential } else { 0.0 };
+    let mut w = Weights { data: opts.w_data, smooth: opts.w_smooth, rigid: opts.w_rigid, landmark: opts.w_landmark, tangential };
     let mut anchor = vec![None; n];
     for &(i, l) in anchors {
         anchor[i] = Some(sub(l, c));
@@ -615,9 +659,10 @@ mod tests {
                 .collect(),
             weight: (0..n).map(|i| if i % 5 == 3 { 0.0 } else { 1.0 }).collect(),
             anchor: (0..n).map(|i| if i % 7 == 2 { Some([pseudo_random(11 * i), 1.0, 2.0]) } else { None }).collect(),
+            tangent: (0..n).map(|i| [v[i][0] + 0.5 * pseudo_random(5 * i), v[i][1] - 0.2, v[i][2] + 0.3]).collect(),
         };
         let x: Vec<f64> = (0..12 * n).map(|k| IDENTITY[k % 12] + 0.2 * pseudo_random(1000 + k)).collect();
-        let w = Weights { data: 1.3, smooth: 7.0, rigid: 2.5, landmark: 0.7 };
+        let w = Weights { data: 1.3, smooth: 7.0, rigid: 2.5, landmark: 0.7, tangential: 0.6 };
         let mut g = vec![0.0; 12 * n];
         energy_gradient(&x, &v, &adj, &corr, w, &mut g);
         let mut scratch = vec![0.0; 12 * n];
@@ -638,10 +683,10 @@ mod tests {
         let (v, f) = grid(4, 4, 1.0, |_, _| 0.0);
         let n = v.len();
         let adj = Adjacency::from_faces(n, &f);
-        let corr = Correspondences { target: v.clone(), normal: vec![[0.0, 0.0, 1.0]; n], weight: vec![1.0; n], anchor: vec![None; n] };
+        let corr = Correspondences { target: v.clone(), normal: vec![[0.0, 0.0, 1.0]; n], weight: vec![1.0; n], anchor: vec![None; n], tangent: Vec::new() };
         let x: Vec<f64> = (0..n).flat_map(|_| IDENTITY).collect();
         let mut g = vec![0.0; 12 * n];
-        let e = energy_gradient(&x, &v, &adj, &corr, Weights { data: 1.0, smooth: 1.0, rigid: 1.0, landmark: 1.0 }, &mut g);
+        let e = energy_gradient(&x, &v, &adj, &corr, Weights { data: 1.0, smooth: 1.0, rigid: 1.0, landmark: 1.0, tangential: 0.0 }, &mut g);
         assert_eq!(e, EnergyParts::default());
         assert!(g.iter().all(|&c| c == 0.0));
     }

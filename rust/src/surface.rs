@@ -147,6 +147,21 @@ impl Surface {
         self.tree.points()
     }
 
+    /// The unit vertex normals.
+    pub fn normals(&self) -> &[Vec3] {
+        &self.normals
+    }
+
+    /// The boundary flags as 0.0 / 1.0 per vertex.
+    pub fn boundary_flags(&self) -> &[f64] {
+        &self.boundary
+    }
+
+    /// The KD-tree over the vertices.
+    pub fn tree(&self) -> &KdTree3 {
+        &self.tree
+    }
+
     /// Closest point of the surface to `q` among the triangles around its `k` nearest vertices
     /// (ties: the lowest triangle id).
     /// `k` = 0: the nearest vertex itself (face `usize::MAX`), as a nearest-neighbour match.

@@ -31,7 +31,9 @@ def _template_patches(model, radius: float) -> list:
 def patch_localise(mesh, model, pose, opts):
     """Default localisation: the template's own surface around each landmark, fitted locally.
 
-    1. the rigid pose gains a uniform scale (:func:`.pose.similarity_icp` of the upper face);
+    ``pose``: (R, t) or (R, t, s), the template posed as ``x -> s R x + t`` (s = 1 if absent).
+
+    1. the pose gains a uniform scale (:func:`.pose.similarity_icp` of the upper face);
     2. per landmark, the template patch within ``patch_radius`` mm of it (``eye_patch_radius`` at
        the eye corners, ``tip_patch_radius`` at the nose tip; radii chosen on 175 training-split
        scans among 10-40 mm) (scaled) is fitted by
@@ -45,8 +47,8 @@ def patch_localise(mesh, model, pose, opts):
     prediction under the learned offset covariance (a patch that had to travel far is doubtful)
     times ``min(1, (2 mm / patch rms)^2)`` (a patch that does not fit the surface is doubtful).
     """
-    r, t = pose
-    r, scale, t, _ = similarity_icp(model.icp_points, mesh.kdtree, r, t)
+    r, t, *rest = pose
+    r, scale, t, _ = similarity_icp(model.icp_points, mesh.kdtree, r, t, scale=float(rest[0]) if rest else 1.0)
     flags = [] if 0.75 < scale < 1.33 else [f"implausible_face_scale:{scale:.2f}x template"]
     scale = float(np.clip(scale, 0.75, 1.33))
     patches = _template_patches(model, float(opts.patch_radius))

@@ -167,8 +167,9 @@ def fit_poses(points: np.ndarray, tree, starts, n_best: int = 3, min_angle_deg: 
 
 
 def similarity_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters: int = 30,
-                   keep: float = 0.8, tol: float = 1e-5):
-    """Trimmed point-to-point ICP with a uniform scale (Umeyama steps) from a rigid pose.
+                   keep: float = 0.8, tol: float = 1e-5, scale: float = 1.0):
+    """Trimmed point-to-point ICP with a uniform scale (Umeyama steps) from the pose
+    ``x -> scale * r x + t`` (``scale`` 1: a rigid pose).
 
     Faces differ in size by several percent, which moves the outer eye corners by 2-3 mm under
     a rigid template; the scale absorbs that. Returns (R (3, 3), scale, t (3,), trimmed RMS mm)
@@ -176,7 +177,7 @@ def similarity_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters
     """
     scan = tree.data
     n_keep = max(6, int(keep * len(points)))
-    s, prev, rms = 1.0, np.inf, np.inf
+    s, prev, rms = float(scale), np.inf, np.inf
     for _ in range(iters):
         d, idx = tree.query(s * points @ r.T + t)
         order = np.argsort(d)[:n_keep]

@@ -83,6 +83,8 @@ class PredictOptions:
     protrusion_radius: float = 25.0   # scale of the protrusion measure
     min_protrusion: float = 4.0       # refuse a scan whose highest protrusion is lower (no nose)
     n_poses: int = 5                  # distinct coarse poses refined and scored by the whole template
+    pose_scales: tuple = (1.0,)       # template sizes the pose search starts from (faces differ by ±20 %)
+    pose_score: str = "trimmed"       # whole-template score of a pose: "trimmed" RMS or "truncated" (start.py)
     localise: str = "patch"           # "patch" (default: local template fits) or "bp" (paper: FP + BP)
     patch_radius: float = 20.0        # template patch around the subalare and the subnasal
     tip_patch_radius: float = 25.0    # the nose tip's (its 20 mm patch slides along the ridge)
@@ -107,6 +109,10 @@ class PredictOptions:
     def __post_init__(self):
         if self.start_search not in ("protrusion", "paper"):
             raise ValueError(f"start_search must be 'protrusion' or 'paper', got {self.start_search!r}")
+        if self.pose_score not in ("trimmed", "truncated"):
+            raise ValueError(f"pose_score must be 'trimmed' or 'truncated', got {self.pose_score!r}")
+        if not self.pose_scales or any(not 0.5 <= float(s) <= 2.0 for s in self.pose_scales):
+            raise ValueError(f"pose_scales must be template sizes in [0.5, 2], got {self.pose_scales!r}")
         if self.localise not in ("patch", "bp"):
             raise ValueError(f"localise must be 'patch' or 'bp', got {self.localise!r}")
 
@@ -225,7 +231,8 @@ def _predict_once(mesh, model, opts: PredictOptions) -> "LandmarkResult":
         from .patches import patch_localise
 
         with timer("patches"):
-            positions, confidence, vids, expected, loc_debug = patch_localise(mesh, model, (r, t), opts)
+            positions, confidence, vids, expected, loc_debug = patch_localise(
+                mesh, model, (r, t, float(start_debug.get("pose_scale", 1.0))), opts)
     else:
         from .paper.localise import bp_localise, bp_outputs
 

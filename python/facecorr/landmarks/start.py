@@ -53,10 +53,29 @@ def _template_tip_plane_normal(model, radius: float) -> np.ndarray:
     return n if n @ model.icp_tip_normal >= 0 else -n
 
 
+def _pose_score(points, tree, r, t, normals, kind: str, scale: float = 1.0) -> float:
+    """How well the posed template ``points`` (P, 3) fit the scan (lower is better), after 10
+    trimmed ICP iterations at the fixed ``scale``: ``"trimmed"`` the RMS of the closest 80 %
+    (mm); ``"truncated"`` the mean of min(d, 3 mm)² over all points (mm²), which a region the
+    template cannot reach (a beard, hair, clothing) caps instead of hiding it by a fixed share."""
+    pts = scale * points
+    r, t, rms, d = trimmed_icp(pts, tree, r, t, iters=10, normals=normals)
+    if kind == "trimmed":
+        return rms
+    return float(np.mean(np.minimum(np.asarray(d), TRUNCATION_MM) ** 2))
+
+
+#: The truncation distance of the ``"truncated"`` pose score, mm: a skin point that matches lies
+#: within ~1-2 mm (noise, expression), one on hair, a beard or the wrong part of the face beyond.
+TRUNCATION_MM = 3.0
+
+
 def protrusion_pose(mesh, model, opts, timer, name):
     """Default start: the ``n_tip_candidates`` most protruding points (:mod:`.protrusion`), each
-    with a sweep of ``sweep_angles`` rotations about its plane normal, then the template ICP;
-    the pose with the smallest trimmed residual wins. Returns (R, t, rms mm, debug dict)."""
+    with a sweep of ``sweep_angles`` rotations about its plane normal at each of the template
+    sizes ``pose_scales``, then the template ICP; the pose with the best whole-template score
+    (``pose_score``) wins. Returns (R, t, rms mm, debug dict with ``"pose_scale"``): the template
+    is posed as ``x -> pose_scale * R x + t``."""
     radius = float(opts.protrusion_radius)
     with timer("starts"):
         tips = nose_tip_candidates(mesh.vertices, mesh.vertex_normals, k=int(opts.n_tip_candidates), radius=radius)
@@ -65,19 +84,27 @@ def protrusion_pose(mesh, model, opts, timer, name):
             raise LandmarkError(f"{name}: nothing protrudes like a nose (highest protrusion {top}, "
                                 f"a nose tip stands ~10 mm out): not a face, or wrong units?")
         tpl_n = _template_tip_plane_normal(model, radius)
-        starts = []
-        for vid, _, n in tips:
-            starts += normal_sweep_starts(model.graph_points[NOSE_TIP], tpl_n, mesh.vertices[vid], n,
-                                          int(opts.sweep_angles))
+        starts_at = {}
+        for s in opts.pose_scales:
+            s = float(s)
+            # the template scaled by s about its origin: the nose tip's start moves with it
+            starts_at[s] = []
+            for vid, _, n in tips:
+                starts_at[s] += normal_sweep_starts(s * model.graph_points[NOSE_TIP], tpl_n, mesh.vertices[vid], n,
+                                                    int(opts.sweep_angles))
     with timer("pose"):
-        poses = fit_poses(model.icp_points, mesh.kdtree, starts, n_best=int(opts.n_poses), normals=mesh.vertex_normals)
+        poses = []
+        for s, starts in starts_at.items():
+            poses += [(pr, pt, rms, s) for pr, pt, rms in
+                      fit_poses(s * model.icp_points, mesh.kdtree, starts, n_best=int(opts.n_poses),
+                                normals=mesh.vertex_normals)]
         # A face and its upside-down image can fit the upper face almost equally well (forehead
         # on the chin); the whole template (mouth and chin too) tells them apart: measured on
         # the 2 upside-down results of the 350 test scans, the right pose had the lowest
         # whole-template residual while its upper-face residual was 0.1-0.15 mm higher.
         full = _template_surface_points(model)
-        scores = [trimmed_icp(full, mesh.kdtree, pr, pt, iters=10, normals=mesh.vertex_normals)[2] for pr, pt, _ in poses]
-        r, t, rms = poses[int(np.argmin(scores))]
+        scores = [_pose_score(full, mesh.kdtree, pr, pt, mesh.vertex_normals, opts.pose_score, s)
+                  for pr, pt, _, s in poses]
+        r, t, rms, s = poses[int(np.argmin(scores))]
     return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips], pose_rms=[p[2] for p in poses],
-                           pose_full_rms=scores)
-
+                           pose_full_rms=scores, pose_scale=s)

@@ -235,6 +235,10 @@ class CorrespondOptions:
     # Pieces with at least this share of the largest piece's area count as separate surfaces
     # (several faces or a face cut in two); smaller ones are specks and hair.
     large_piece_fraction: float = 0.2
+    # Predicted landmarks only: register this many more times, each time guided by the 8
+    # landmarks read off the previous registration (the whole template fitted to the scan places
+    # them better than the local patch fits that predicted them).
+    refine_passes: int = 0
     # The expression-removed shape (Result.neutral_vertices; None: not computed). See
     # facecorr.registration.neutral.
     neutral: NeutralOptions | None = field(default_factory=NeutralOptions)
@@ -297,6 +301,15 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
             flags = list(pred2.flags)  # the first prediction's doubts no longer apply
             doubts = reg.implausible()
         flags.append("refit_wider_search_after_implausible_fit")
+    if landmarks is None and not doubts:
+        for _ in range(int(opts.refine_passes)):
+            t1 = time.perf_counter()
+            pos2 = {k: np.asarray(v, float) for k, v in reg.landmarks_registered.items()}
+            reg2 = register(work, pos2, template=template, options=reg_opts)
+            timings["refine"] = timings.get("refine", 0.0) + time.perf_counter() - t1
+            if reg2.implausible():
+                break
+            reg, positions = reg2, pos2
     flags += [f"implausible_fit:{d}" for d in doubts]
     ids = np.asarray(template.landmark_ids)
     for name, d in zip(LANDMARK_NAMES, reg.scan_distance[ids]):

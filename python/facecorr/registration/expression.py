@@ -148,6 +148,14 @@ class ExpressionOptions:
     damping: str = "reversal"
     overrelax: float = 1.5
     identity_prior_decay: float = 0.5  # the identity prior's factor per round
+    # Normal-aware matches (``feature_lambda`` 0 = off; rust/src/soft_match.rs): the closest point
+    # moved along its tangent plane towards the scan vertices within ``feature_radius`` mm whose
+    # normals match the template vertex's (weights exp(-(|v - p|² + λ² |n_v - n_p|²) / 2τ²), λ =
+    # ``feature_lambda`` mm, τ = ``feature_tau`` mm): where the surface bends (lips, eyes, brow
+    # ridge) a template feature is drawn to the scan's, a tangential pull closest points lack.
+    feature_lambda: float = 0.0
+    feature_tau: float = 2.0
+    feature_radius: float = 7.0
 
 
 def box_qp(h, g, x0, lo=0.0, hi=1.0, max_iter=100) -> np.ndarray:
@@ -373,6 +381,9 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
         p = base + basis.offsets(alpha) @ lin.T
         pn = vertex_normals(p, faces)
         _, _, q, dist, qn, b_share = surface.closest(p, int(o.surface_k))
+        if o.feature_lambda > 0.0:
+            q = surface.soft_targets(p, pn, int(o.surface_k), float(o.feature_radius), float(o.feature_lambda),
+                                     float(o.feature_tau))
         w_match = match_weights(np.einsum("ij,ij->i", pn, qn), dist, b_share, angle_req, o.angle_band_deg,
                                 o.max_distance, o.distance_band, o.reject_boundary) * keep
         valid = w_match > 0.0

@@ -54,6 +54,14 @@ class ShapeFitOptions:
     distance_band: float = 1.0
     w_landmark: float = 0.0         # ω of the landmark term (the paper: none)
     precondition: bool = True       # diagonal preconditioner of the L-BFGS
+    # Normal-aware soft matches (rust/src/soft_match.rs; 0 = off): each match also pulls the
+    # vertex along the surface, w β ‖P (s − p̃)‖² with β = ``w_tangential``, towards the scan
+    # vertices within ``feature_radius`` mm whose normals match the template's (λ =
+    # ``feature_lambda`` mm per unit normal difference, temperature ``feature_tau`` mm).
+    feature_lambda: float = 0.0
+    feature_tau: float = 2.0
+    feature_radius: float = 7.0
+    w_tangential: float = 0.5
 
 
 @dataclass

@@ -67,6 +67,35 @@ impl Surface {
         Ok((Array1::from_vec(face).into_pyarray(py), bary.into_pyarray(py), point.into_pyarray(py), dist.into_pyarray(py),
             normal.into_pyarray(py), bnd.into_pyarray(py)))
     }
+
+    /// Normal-aware soft targets (`crate::soft_match`): per query (Q, 3) with unit normal (Q, 3),
+    /// its closest surface point among the triangles of its `k` nearest vertices moved along the
+    /// tangent plane towards the scan vertices within `radius` mm whose normals match (`lam` mm per
+    /// unit of normal difference, temperature `tau` mm). Returns the targets (Q, 3).
+    fn soft_targets<'py>(
+        &self, py: Python<'py>, q: PyReadonlyArray2<'py, f64>, normals: PyReadonlyArray2<'py, f64>, k: usize,
+        radius: f64, lam: f64, tau: f64,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        if k > 16 {
+            return Err(value_err(format!("k must be <= 16, got {k}")));
+        }
+        if !(radius > 0.0 && radius.is_finite() && tau > 0.0 && tau.is_finite() && lam >= 0.0 && lam.is_finite()) {
+            return Err(value_err("radius and tau must be positive and lam non-negative (finite)"));
+        }
+        let qs = points3(&q, "query points")?;
+        let ns = points3(&normals, "query normals")?;
+        if ns.len() != qs.len() {
+            return Err(value_err(format!("query normals must have {} rows, got {}", qs.len(), ns.len())));
+        }
+        let nq = qs.len();
+        let s = self.inner.clone();
+        let o = crate::soft_match::SoftMatchOptions { radius, lambda: lam, tau };
+        let out = run(py, "Surface.soft_targets", move || {
+            let cp = s.closest_all(&qs, k);
+            crate::soft_match::soft_targets(&s, &qs, &ns, &cp, &o)
+        })?;
+        Ok(Array2::from_shape_vec((nq, 3), out.into_iter().flatten().collect()).expect("shape").into_pyarray(py))
+    }
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
