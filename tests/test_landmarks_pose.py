@@ -125,3 +125,25 @@ def test_hinted_queries_give_the_same_poses_as_plain_queries():
     for x, y in zip(pa, pb):
         for u, v in zip(x, y):
             np.testing.assert_array_equal(u, v)
+
+
+def test_batch_icp_scales_move_each_start_at_its_own_size():
+    """``scales``: start k moves the points as s_k R x + t; the same as the rigid batch of the
+    points scaled by s_k (each size run on its own), to rounding."""
+    from facecorr.landmarks.pose import batch_icp
+
+    rot = Rotation.random(random_state=7).as_matrix()
+    clean = _bumpy_face(90)
+    normals = _grid_normals(clean, 90) @ rot.T
+    scan = clean @ rot.T + np.array([5.0, -20.0, 40.0])
+    tree = cKDTree(scan)
+    tip = np.array([0.0, 0.0, 25.0])
+    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + [5.0, -20.0, 40.0], rot[:, 2], 4)
+    pts = _bumpy_face()[::7]
+    sizes = np.array([0.9, 1.0, 1.1, 1.2])
+    rms, rs, ts = batch_icp(pts, tree, starts, iters=4, normals=normals, scales=sizes)
+    for k, s in enumerate(sizes):
+        rms1, rs1, ts1 = batch_icp(s * pts, tree, [starts[k]], iters=4, normals=normals)
+        np.testing.assert_allclose(rs[k], rs1[0], atol=1e-9)
+        np.testing.assert_allclose(ts[k], ts1[0], atol=1e-7)
+        assert rms[k] == pytest.approx(rms1[0], rel=1e-9)

@@ -97,3 +97,37 @@ def test_same_as_the_sparse_product_on_a_noisy_surface():
     np.testing.assert_array_equal(cnt, cnt0)
     np.testing.assert_array_equal(h, h0)
     np.testing.assert_array_equal(pn, pn0)
+
+
+def test_median_height_ignores_a_lone_spike():
+    """A single point lifted 14 mm (a hair spike) is the highest protrusion; with the median of
+    its 9 nearest points it is not, and the bump's apex leads again (numpy median reference)."""
+    p, n = _grid()
+    spike = np.argmin(np.linalg.norm(p[:, :2] - [-40, 40], axis=1))
+    p = p.copy()
+    p[spike, 2] += 14.0
+    raw = nose_tip_candidates(p, n, k=1, spacing=0.0)[0]
+    assert raw[0] == spike
+    best = nose_tip_candidates(p, n, k=1, spacing=0.0, median_k=9)[0]
+    assert np.linalg.norm(p[best[0]] - [0, 0, 20]) < 3.0
+    h, _, _ = ball_protrusion(p, n, 25.0)
+    nb = np.argsort(np.linalg.norm(p[:, None] - p[best[0]], axis=2)[:, 0])[:9]
+    assert best[1] == pytest.approx(float(np.median(h[nb])), abs=1e-9)
+
+
+def test_keep_leaves_floating_pieces_out():
+    """Points not kept (a glasses frame floating 12 mm in front of the face) neither become
+    candidates nor tilt the balls' planes: the result is that of the face alone."""
+    p, n = _grid()
+    x, y = np.meshgrid(np.linspace(-30, 30, 31), np.linspace(22, 30, 5))
+    bar = np.column_stack([x.ravel(), y.ravel(), 20 * np.exp(-(x.ravel() ** 2 + y.ravel() ** 2) / 150) + 12.0])
+    pts = np.vstack([p, bar])
+    nrm = np.vstack([n, np.tile([0.0, 0.0, 1.0], (len(bar), 1))])
+    keep = np.arange(len(pts)) < len(p)
+    with_bar = nose_tip_candidates(pts, nrm, k=2, spacing=0.0)
+    alone = nose_tip_candidates(p, n, k=2, spacing=0.0)
+    # the frame changes the answer (it moves the apex's plane and so the best point)
+    assert [c[0] for c in with_bar] != [c[0] for c in alone]
+    kept = nose_tip_candidates(pts, nrm, k=2, spacing=0.0, keep=keep)
+    assert [c[0] for c in kept] == [c[0] for c in alone]
+    np.testing.assert_allclose([c[1] for c in kept], [c[1] for c in alone], atol=1e-9)

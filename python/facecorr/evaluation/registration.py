@@ -34,11 +34,13 @@ def _eval_one(job):
         regions = evaluate.region_errors(res.vertices, gt["ibug68"], template)
         dense = evaluate.dense_error(res.vertices, gt["dense"], template)
         lm_err = {k: float(np.linalg.norm(np.asarray(res.landmarks[k]) - gt["landmarks"][k])) for k in LANDMARK_NAMES}
+        reg_err = {k: float(np.linalg.norm(np.asarray(res.landmarks_registered[k]) - gt["landmarks"][k]))
+                   for k in LANDMARK_NAMES}
         return {
             "scan": rec["scan"], "ok": True,
             "regions": {k: np.asarray(v, float).tolist() for k, v in regions.items()},
             "dense_mean": float(np.mean(dense)) if len(dense) else float("nan"),
-            "mhd": float(res.mhd), "landmark_errors": lm_err,
+            "mhd": float(res.mhd), "landmark_errors": lm_err, "registered_landmark_errors": reg_err,
             "seconds": time.perf_counter() - t0, "timings_s": res.timings_s,
         }
     except Exception as e:  # noqa: BLE001 - a failed scan is a result too

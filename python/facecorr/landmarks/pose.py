@@ -96,8 +96,11 @@ def fit_pose(points: np.ndarray, tree, starts, coarse_iters: int = 8, fine_iters
 
 
 def batch_icp(points: np.ndarray, tree, starts, iters: int = 8, keep: float = 0.8,
-              normals: np.ndarray | None = None):
+              normals: np.ndarray | None = None, scales=None):
     """:func:`trimmed_icp` from many starts at once, a fixed number of iterations.
+
+    ``scales`` (S,): start k moves the points as ``x -> scales[k] * R x + t`` (the size of
+    each start is held; default 1: rigid).
 
     All starts advance together: one KD-tree query for every start's moved points per
     iteration and batched 6x6 normal equations (point-to-plane) or batched Kabsch, which is
@@ -109,10 +112,11 @@ def batch_icp(points: np.ndarray, tree, starts, iters: int = 8, keep: float = 0.
     rs = np.array([np.asarray(r, float) for r, _ in starts])
     ts = np.array([np.asarray(t, float) for _, t in starts])
     n_s, n_p = len(rs), len(points)
+    ss = np.ones(n_s) if scales is None else np.asarray(scales, dtype=np.float64).reshape(n_s)
     n_keep = max(6, int(keep * n_p))
     idx = None
     for it in range(iters + 1):
-        moved = np.einsum("sij,pj->spi", rs, points) + ts[:, None, :]
+        moved = np.einsum("sij,pj->spi", rs * ss[:, None, None], points) + ts[:, None, :]
         # most starts lie off the surface, where a nearest-point search backtracks far; each
         # point's match of the last step bounds it (the same matches, cheaper)
         flat = moved.reshape(-1, 3)
@@ -143,26 +147,29 @@ def batch_icp(points: np.ndarray, tree, starts, iters: int = 8, keep: float = 0.
 
 def fit_poses(points: np.ndarray, tree, starts, n_best: int = 3, min_angle_deg: float = 30.0,
               coarse_iters: int = 8, fine_iters: int = 40, keep: float = 0.8, normals=None,
-              coarse_stride: int = 3):
+              coarse_stride: int = 3, scales=None):
     """Up to ``n_best`` refined poses [(R, t, rms), ...] from the best coarse starts whose
     rotations differ by more than ``min_angle_deg`` (a face and its upside-down image can fit
     the trimmed residual almost equally well; the caller decides). The coarse stage runs all
     starts together (:func:`batch_icp`) on every ``coarse_stride``-th point (it only ranks the
     starts; nearest-neighbour queries far off the surface, as most starts are, cost ~10x a
-    near one), the refinement :func:`trimmed_icp` on all points."""
+    near one), the refinement :func:`trimmed_icp` on all points. ``scales`` (S,): the held
+    size of each start (:func:`batch_icp`); then each pose is (R, t, rms, scale)."""
+    ss = None if scales is None else np.asarray(scales, dtype=np.float64)
     rms, rs, ts = batch_icp(points[::max(1, int(coarse_stride))], tree, starts, iters=coarse_iters, keep=keep,
-                            normals=normals)
+                            normals=normals, scales=ss)
     chosen = []
     cos_min = np.cos(np.radians(min_angle_deg))
     for k in np.argsort(rms, kind="stable"):
         if all((np.trace(rs[k].T @ c[0]) - 1) / 2 < cos_min for c in chosen):
-            chosen.append((rs[k], ts[k]))
+            chosen.append((rs[k], ts[k], 1.0 if ss is None else float(ss[k])))
         if len(chosen) >= n_best:
             break
     out = []
-    for r, t in chosen:
-        r, t, rms_k, _ = trimmed_icp(points, tree, r, t, iters=fine_iters, keep=keep, normals=normals)
-        out.append((r, t, rms_k))
+    for r, t, s in chosen:
+        r, t, rms_k, _ = trimmed_icp(s * points if ss is not None else points, tree, r, t, iters=fine_iters,
+                                     keep=keep, normals=normals)
+        out.append((r, t, rms_k) if ss is None else (r, t, rms_k, s))
     return out
 
 

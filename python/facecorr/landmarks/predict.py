@@ -79,12 +79,18 @@ class PredictOptions:
     """
 
     start_search: str = "protrusion"  # "protrusion" (default) or "paper" (umbilics + FPPCA + nose search)
-    n_tip_candidates: int = 4         # protrusion maxima tried as nose tips
+    n_tip_candidates: int = 6         # protrusion maxima tried as nose tips
     protrusion_radius: float = 25.0   # scale of the protrusion measure
     min_protrusion: float = 4.0       # refuse a scan whose highest protrusion is lower (no nose)
+    # Nose-tip candidates come from the pieces of at least this share of the largest piece's area
+    # (0: every piece): glasses frames and specks float apart from the face (protrusion.py).
+    nose_piece_fraction: float = 0.2
+    protrusion_median_k: int = 13     # heights smoothed by the median of this many neighbours (hair spikes)
     n_poses: int = 5                  # distinct coarse poses refined and scored by the whole template
     pose_scales: tuple = (1.0,)       # template sizes the pose search starts from (faces differ by ±20 %)
     pose_score: str = "trimmed"       # whole-template score of a pose: "trimmed" RMS or "truncated" (start.py)
+    poses_per_tip: int = 1            # >0: each nose-tip candidate's own best poses (0: the n_poses best overall)
+    pose_height_weight: float = 0.2   # with poses_per_tip: score minus this x the candidate's protrusion (mm/mm)
     localise: str = "patch"           # "patch" (default: local template fits) or "bp" (paper: FP + BP)
     patch_radius: float = 20.0        # template patch around the subalare and the subnasal
     tip_patch_radius: float = 25.0    # the nose tip's (its 20 mm patch slides along the ridge)

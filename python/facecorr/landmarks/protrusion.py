@@ -60,7 +60,8 @@ def ball_protrusion(points: np.ndarray, normals: np.ndarray, radius: float, tree
 
 
 def nose_tip_candidates(vertices: np.ndarray, normals: np.ndarray, k: int = 4, radius: float = 25.0,
-                        spacing: float = 3.0, min_separation: float = 20.0):
+                        spacing: float = 3.0, min_separation: float = 20.0, keep: np.ndarray | None = None,
+                        median_k: int = 1):
     """Up to ``k`` nose-tip candidates, best first.
 
     Parameters
@@ -69,6 +70,13 @@ def nose_tip_candidates(vertices: np.ndarray, normals: np.ndarray, k: int = 4, r
     k : number of candidates; radius : protrusion scale, mm; spacing : voxel subsampling of the
     scan before the measure, mm; min_separation : candidates are local maxima at least this far
     apart, mm.
+    keep : optional (N,) bool, the vertices that take part (both as candidates and in the balls'
+        planes), e.g. those of the scan's large pieces: a glasses frame floating in front of the
+        eyes tilts the plane of the nose tip's ball (measured: the tip's protrusion drops from
+        ~10 to 2-5 mm) and its pieces protrude themselves.
+    median_k : the height of a point is the median over its ``median_k`` nearest subsampled
+        points (itself included; 1 = its own): a spike of hair or noise stands out alone, a nose
+        tip is a cap ~10 mm wide whose neighbours protrude almost as much.
 
     Returns
     -------
@@ -76,9 +84,16 @@ def nose_tip_candidates(vertices: np.ndarray, normals: np.ndarray, k: int = 4, r
     than a quarter of the median point count (scan borders, islands) are skipped: their plane
     is unreliable.
     """
-    ids = voxel_subsample(vertices, np.arange(len(vertices)), spacing)
-    height, plane_normal, count = ball_protrusion(vertices[ids], normals[ids], radius)
+    ids = np.arange(len(vertices)) if keep is None else np.flatnonzero(keep)
+    ids = ids[voxel_subsample(vertices[ids], np.arange(len(ids)), spacing)]
+    pts = vertices[ids]
+    height, plane_normal, count = ball_protrusion(pts, normals[ids], radius)
     ok = count >= max(10, 0.25 * np.median(count))
+    if median_k > 1 and len(pts) > 1:
+        from ..geometry.spatial import KDTree
+
+        _, nb = KDTree(pts).query(pts, k=min(int(median_k), len(pts)))
+        height = np.median(height[nb], axis=1)
     out = []
     for o in np.argsort(-height):
         if len(out) >= k:

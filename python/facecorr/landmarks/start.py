@@ -78,33 +78,56 @@ def protrusion_pose(mesh, model, opts, timer, name):
     is posed as ``x -> pose_scale * R x + t``."""
     radius = float(opts.protrusion_radius)
     with timer("starts"):
-        tips = nose_tip_candidates(mesh.vertices, mesh.vertex_normals, k=int(opts.n_tip_candidates), radius=radius)
+        keep = None
+        if opts.nose_piece_fraction > 0:
+            areas = mesh.component_areas
+            keep = np.isin(mesh.components, np.flatnonzero(areas >= float(opts.nose_piece_fraction) * areas[0]))
+        tips = nose_tip_candidates(mesh.vertices, mesh.vertex_normals, k=int(opts.n_tip_candidates), radius=radius,
+                                   keep=keep, median_k=int(opts.protrusion_median_k))
         if not tips or tips[0][1] < float(opts.min_protrusion):
             top = f"{tips[0][1]:.1f} mm" if tips else "none"
             raise LandmarkError(f"{name}: nothing protrudes like a nose (highest protrusion {top}, "
                                 f"a nose tip stands ~10 mm out): not a face, or wrong units?")
         tpl_n = _template_tip_plane_normal(model, radius)
-        starts_at = {}
-        for s in opts.pose_scales:
-            s = float(s)
-            # the template scaled by s about its origin: the nose tip's start moves with it
-            starts_at[s] = []
-            for vid, _, n in tips:
-                starts_at[s] += normal_sweep_starts(s * model.graph_points[NOSE_TIP], tpl_n, mesh.vertices[vid], n,
-                                                    int(opts.sweep_angles))
+        sizes = tuple(float(s) for s in opts.pose_scales)
+        groups = []  # per nose-tip candidate: (its height, its starts, their template sizes)
+        for vid, h, n in tips:
+            st, sc = [], []
+            for s in sizes:
+                # the template scaled by s about its origin: the nose tip's start moves with it
+                st += normal_sweep_starts(s * model.graph_points[NOSE_TIP], tpl_n, mesh.vertices[vid], n,
+                                          int(opts.sweep_angles))
+                sc += [s] * int(opts.sweep_angles)
+            groups.append((h, st, sc))
     with timer("pose"):
-        poses = []
-        for s, starts in starts_at.items():
-            poses += [(pr, pt, rms, s) for pr, pt, rms in
-                      fit_poses(s * model.icp_points, mesh.kdtree, starts, n_best=int(opts.n_poses),
-                                normals=mesh.vertex_normals)]
+        if opts.poses_per_tip > 0:
+            # each candidate keeps its own best poses: on a raw scan the template's upper face can
+            # fit a shoulder or a hairy scalp better, in the coarse ranking, than an unusual face
+            poses = [p + (h,) for h, st, sc in groups
+                     for p in _fit_poses_sized(mesh, model, st, sc, int(opts.poses_per_tip))]
+        else:
+            poses = [p + (np.nan,) for p in _fit_poses_sized(mesh, model, [x for g in groups for x in g[1]],
+                                                             [x for g in groups for x in g[2]], int(opts.n_poses))]
         # A face and its upside-down image can fit the upper face almost equally well (forehead
         # on the chin); the whole template (mouth and chin too) tells them apart: measured on
         # the 2 upside-down results of the 350 test scans, the right pose had the lowest
         # whole-template residual while its upper-face residual was 0.1-0.15 mm higher.
         full = _template_surface_points(model)
         scores = [_pose_score(full, mesh.kdtree, pr, pt, mesh.vertex_normals, opts.pose_score, s)
-                  for pr, pt, _, s in poses]
-        r, t, rms, s = poses[int(np.argmin(scores))]
-    return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips], pose_rms=[p[2] for p in poses],
-                           pose_full_rms=scores, pose_scale=s)
+                  for pr, pt, _, s, _ in poses]
+        if opts.pose_height_weight > 0 and opts.poses_per_tip > 0:
+            # a nose tip stands out of its ball: a pose seeded at a higher protrusion is likelier
+            scores = [sc - float(opts.pose_height_weight) * p[4] for sc, p in zip(scores, poses)]
+        r, t, rms, s, _ = poses[int(np.argmin(scores))]
+    return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips],
+                           pose_rms=[p[2] for p in poses], pose_full_rms=scores, pose_scale=s)
+
+
+def _fit_poses_sized(mesh, model, starts, scales, n_best):
+    """:func:`.pose.fit_poses` of the template's upper face from ``starts`` at the template sizes
+    ``scales`` (one per start): [(R, t, rms, size), ...]."""
+    if all(s == 1.0 for s in scales):  # the rigid search (bitwise as before)
+        return [(pr, pt, rms, 1.0) for pr, pt, rms in
+                fit_poses(model.icp_points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals)]
+    return fit_poses(model.icp_points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
+                     scales=np.array(scales))
