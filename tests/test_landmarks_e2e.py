@@ -165,3 +165,37 @@ def test_damaged_face_is_flagged_or_refused(trained, damage):
     # measured: both raise graph_off_surface:nose_tip (the half face also implausible_face_scale
     # and patch_slid on 7 landmarks); a whole-graph failure flag, not only low confidence
     assert any(f.startswith(("graph_off_surface", "poor_face_fit", "implausible")) for f in res.flags), res.flags
+
+
+def test_locate_landmarks_refined_by_the_registration(trained, tmp_path):
+    """``facecorr landmarks`` writes the landmarks read off the registered template (the same as
+    correspond's ``landmarks_registered``), ``--fast`` the prediction alone (the same as
+    predict_landmarks); on the tiny preset's test scans the refined ones are no worse."""
+    from facecorr.cli import main
+    from facecorr.io import load_mesh
+    from facecorr.landmarks import predict_landmarks
+    from facecorr.pipeline import CorrespondOptions, correspond, locate_landmarks
+
+    db, path, model, recs = trained
+    errs = {"fast": [], "refined": []}
+    for k, r in enumerate([r for r in recs if r["split"] == "test"][:2]):
+        mesh = load_mesh(r["scan"], units="mm")
+        gt = json.loads(open(r["gt"]).read())["landmarks"]
+        fast = locate_landmarks(mesh, model=model, refine=False)
+        ref = locate_landmarks(mesh, model=model)
+        pred = predict_landmarks(mesh, model=model)
+        reg = correspond(mesh, model=model, options=CorrespondOptions(neutral=None))
+        for n in LANDMARK_NAMES:
+            np.testing.assert_array_equal(fast.positions[n], pred.positions[n])
+            np.testing.assert_allclose(ref.positions[n], reg.landmarks_registered[n], atol=1e-6)
+            np.testing.assert_allclose(ref.debug["predicted"][n], pred.positions[n], atol=1e-9)
+            errs["fast"].append(np.linalg.norm(fast.positions[n] - np.asarray(gt[n])))
+            errs["refined"].append(np.linalg.norm(ref.positions[n] - np.asarray(gt[n])))
+        if k == 0:  # the CLI: refined by default, --fast the prediction
+            for flag, want in (([], ref), (["--fast"], fast)):
+                out = tmp_path / f"lm{len(flag)}.json"
+                assert main(["landmarks", r["scan"], "--json", str(out), "--model", str(path), *flag]) == 0
+                data = json.loads(out.read_text())["landmarks"]
+                for n in LANDMARK_NAMES:
+                    np.testing.assert_allclose(data[n], want.positions[n], atol=1e-9)
+    assert np.mean(errs["refined"]) <= np.mean(errs["fast"]) + 0.5, {k: np.mean(v) for k, v in errs.items()}

@@ -29,8 +29,10 @@ def add_commands(sub) -> None:
     e.add_argument("--split", default="test",
                    help="subjects to evaluate: test (default), train, or ood_test / ood_holdout on a bu3dfe-ood database")
     e.add_argument("--rotate", action="store_true", help="turn every scan by a random rotation first")
-    e.add_argument("--method", default="default", choices=["default", "paper"],
-                   help="default (protrusion start + template patches) or paper (umbilic/FPPCA start + BP)")
+    e.add_argument("--method", default="default", choices=["default", "fast", "paper"],
+                   help="default (what `facecorr landmarks` writes: protrusion start + template patches, refined by "
+                        "the registration), fast (the prediction alone, `facecorr landmarks --fast`) or paper "
+                        "(umbilic/FPPCA start + BP)")
     e.add_argument("--no-png", action="store_true", help="skip landmarks.png (true vs predicted on 8 scans)")
     add_run_options(e)
     e.set_defaults(func=cmd_eval_landmarks)

@@ -23,10 +23,12 @@ PRETTY = {n: n.replace("_", " ").capitalize() for n in LANDMARK_NAMES}
 
 def _eval_one(job):
     """Worker: predict one scan and measure it; never raises."""
-    rec, model_path, rotate_seed, options = job
+    rec, model_path, rotate_seed, (options, refine) = job
     from ..io import load_mesh
     from ..geometry.mesh import Mesh
-    from ..landmarks.predict import predict_landmarks
+    from ..landmarks.predict import PredictOptions
+    from ..pipeline import CorrespondOptions
+    from ..pipeline.landmarks import locate_landmarks
 
     t0 = time.perf_counter()
     try:
@@ -40,7 +42,8 @@ def _eval_one(job):
             r = Rotation.random(random_state=rotate_seed).as_matrix()
             mesh = Mesh(mesh.vertices @ r.T, mesh.faces, source=mesh.source)
             truth = truth @ r.T
-        res = predict_landmarks(mesh, model=model, **options)
+        res = locate_landmarks(mesh, model=model, refine=refine,
+                               options=CorrespondOptions(predict=PredictOptions(**options)))
         pred = res.as_array()
         err = np.linalg.norm(pred - truth, axis=1)
         if rotate_seed is not None:
@@ -56,8 +59,11 @@ def _eval_one(job):
 
 _MODEL_CACHE = {}
 
-#: Prediction options of the methods ``facecorr eval landmarks --method`` compares.
-METHODS = {"default": {}, "paper": {"start_search": "paper", "localise": "bp"}}
+#: The methods ``facecorr eval landmarks --method`` compares: (prediction options, refined by the
+#: registration?). "default" is what ``facecorr landmarks`` writes (:func:`facecorr.pipeline.
+#: landmarks.locate_landmarks`), "fast" its prediction alone (``--fast``), "paper" the paper's
+#: start and BP.
+METHODS = {"default": ({}, True), "fast": ({}, False), "paper": ({"start_search": "paper", "localise": "bp"}, False)}
 
 
 def _cached_model(path):

@@ -89,7 +89,7 @@ class PredictOptions:
     n_poses: int = 5                  # distinct coarse poses refined and scored by the whole template
     pose_scales: tuple = (1.0,)       # template sizes the pose search starts from (faces differ by ±20 %)
     pose_score: str = "trimmed"       # whole-template score of a pose: "trimmed" RMS or "truncated" (start.py)
-    poses_per_tip: int = 1            # >0: each nose-tip candidate's own best poses (0: the n_poses best overall)
+    poses_per_tip: int = 2            # >0: each nose-tip candidate's own best poses (0: the n_poses best overall)
     pose_height_weight: float = 0.2   # with poses_per_tip: score minus this x the candidate's protrusion (mm/mm)
     localise: str = "patch"           # "patch" (default: local template fits) or "bp" (paper: FP + BP)
     patch_radius: float = 20.0        # template patch around the subalare and the subnasal
