@@ -4,11 +4,11 @@
 template around it (:mod:`facecorr.landmarks.patches`): a rigid patch, so an eye wider or a nose
 longer than the template's pulls it off by the difference. The registration that follows
 (alignment, expression + identity fit, shape fit) fits the whole template to the scan, and the
-template's 8 landmark vertices then sit far closer to the truth: on every one of 35 bu3dfe test
-scans 0.68 mm mean against 2.14 mm predicted, on the 45 of 98 out-of-model ``ood_test`` scans
-whose prediction is within 15 mm 2.10 against 4.86 mm (``benches/variants.py``, BENCHMARKS.md
-"Refined landmarks"). :func:`locate_landmarks` returns those, at the cost of one registration
-(``refine=False``: the prediction alone).
+template's 8 landmark vertices then sit far closer to the truth: on 70 bu3dfe test scans 0.74 mm
+mean against 2.22 mm predicted; on the 98 out-of-model ``ood_test`` scans the median scan's mean
+2.60 against 6.70 mm, all 8 within 10 mm on 75.5 % against 27.6 % of the scans (``benches/
+variants.py``, BENCHMARKS.md "Out of model, second pass"). :func:`locate_landmarks` returns those,
+at the cost of one registration (``refine=False``: the prediction alone).
 """
 
 from __future__ import annotations
