@@ -74,18 +74,23 @@ def test_trimmed_icp_ignores_missing_part():
     assert rms < 0.5
 
 
+def _posed_scene(seed: int, n_angles: int):
+    """The bumpy face turned by a random rotation and moved: (rotation, cKDTree of the scan, scan
+    normals, ``n_angles`` sweep starts about the nose tip, template points (every 7th))."""
+    rot = Rotation.random(random_state=seed).as_matrix()
+    clean = _bumpy_face(90)
+    normals = _grid_normals(clean, 90) @ rot.T
+    scan = clean @ rot.T + np.array([5.0, -20.0, 40.0])
+    tip = np.array([0.0, 0.0, 25.0])
+    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + [5.0, -20.0, 40.0], rot[:, 2], n_angles)
+    return rot, cKDTree(scan), normals, starts, _bumpy_face()[::7]
+
+
 @pytest.mark.parametrize("use_normals", [True, False])
 def test_batch_icp_equals_looped_trimmed_icp(use_normals):
     from facecorr.landmarks.pose import batch_icp, fit_poses
 
-    rot = Rotation.random(random_state=3).as_matrix()
-    clean = _bumpy_face(90)
-    normals = _grid_normals(clean, 90) @ rot.T
-    scan = clean @ rot.T + np.array([5.0, -20.0, 40.0])
-    tree = cKDTree(scan)
-    tip = np.array([0.0, 0.0, 25.0])
-    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + [5.0, -20.0, 40.0], rot[:, 2], 8)
-    pts = _bumpy_face()[::7]
+    rot, tree, normals, starts, pts = _posed_scene(3, 8)
     nrm = normals if use_normals else None
     rms, rs, ts = batch_icp(pts, tree, starts, iters=5, normals=nrm)
     for k, (r0, t0) in enumerate(starts):
@@ -132,14 +137,7 @@ def test_batch_icp_scales_move_each_start_at_its_own_size():
     points scaled by s_k (each size run on its own), to rounding."""
     from facecorr.landmarks.pose import batch_icp
 
-    rot = Rotation.random(random_state=7).as_matrix()
-    clean = _bumpy_face(90)
-    normals = _grid_normals(clean, 90) @ rot.T
-    scan = clean @ rot.T + np.array([5.0, -20.0, 40.0])
-    tree = cKDTree(scan)
-    tip = np.array([0.0, 0.0, 25.0])
-    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + [5.0, -20.0, 40.0], rot[:, 2], 4)
-    pts = _bumpy_face()[::7]
+    _, tree, normals, starts, pts = _posed_scene(7, 4)
     sizes = np.array([0.9, 1.0, 1.1, 1.2])
     rms, rs, ts = batch_icp(pts, tree, starts, iters=4, normals=normals, scales=sizes)
     for k, s in enumerate(sizes):
