@@ -2,8 +2,10 @@
 
 The ``n_tip_candidates`` most protruding points (:mod:`.protrusion`) each seed a sweep of rigid
 starts about their plane normal; a trimmed point-to-plane ICP of the template's upper face
-(:mod:`.pose`) refines the best, and the whole template's residual picks among the best poses
-(a face against its upside-down image).
+(:mod:`.pose`) refines each candidate's best (a face and its upside-down image), and the whole
+template's residual, less a share of the candidate's protrusion, picks among them: on raw scans a
+shoulder or a hairy scalp can fit the upper face better than an unusual face (BENCHMARKS.md,
+"Out of model, second pass").
 """
 
 from __future__ import annotations
@@ -71,11 +73,14 @@ TRUNCATION_MM = 3.0
 
 
 def protrusion_pose(mesh, model, opts, timer, name):
-    """Default start: the ``n_tip_candidates`` most protruding points (:mod:`.protrusion`), each
-    with a sweep of ``sweep_angles`` rotations about its plane normal at each of the template
-    sizes ``pose_scales``, then the template ICP; the pose with the best whole-template score
-    (``pose_score``) wins. Returns (R, t, rms mm, debug dict with ``"pose_scale"``): the template
-    is posed as ``x -> pose_scale * R x + t``."""
+    """Default start: the ``n_tip_candidates`` most protruding points (:mod:`.protrusion`, on the
+    pieces of at least ``nose_piece_fraction`` of the largest one's area, heights median-smoothed
+    over ``protrusion_median_k`` neighbours), each with a sweep of ``sweep_angles`` rotations about
+    its plane normal at each of the template sizes ``pose_scales``, then the template ICP: each
+    candidate's ``poses_per_tip`` best poses (0: the ``n_poses`` best of all candidates together);
+    the pose with the best whole-template score (``pose_score``, less ``pose_height_weight`` × the
+    candidate's protrusion) wins. Returns (R, t, rms mm, debug dict with ``"pose_scale"``): the
+    template is posed as ``x -> pose_scale * R x + t``."""
     radius = float(opts.protrusion_radius)
     with timer("starts"):
         keep = None
