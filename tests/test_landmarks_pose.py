@@ -145,3 +145,28 @@ def test_batch_icp_scales_move_each_start_at_its_own_size():
         np.testing.assert_allclose(rs[k], rs1[0], atol=1e-9)
         np.testing.assert_allclose(ts[k], ts1[0], atol=1e-7)
         assert rms[k] == pytest.approx(rms1[0], rel=1e-9)
+
+
+def test_coarse_scan_ranks_the_starts_and_the_scan_refines_them():
+    """``fit_poses(coarse_scan=...)``: the coarse stage on a subsampled scan (its own tree and
+    normals), the refinement on the whole scan: the same true pose as without it, and given the
+    whole scan as the coarse one, exactly the default result."""
+    from facecorr.geometry.spatial import KDTree, voxel_subsample
+    from facecorr.landmarks.pose import fit_poses
+
+    rot, ctree, normals, starts, pts = _posed_scene(11, 12)
+    tree = KDTree(ctree.data)
+    sub = voxel_subsample(tree.data, np.arange(len(tree.data)), 4.0)
+    assert len(sub) < 0.5 * len(tree.data)
+    (r, t, rms), *_ = fit_poses(pts, tree, starts, n_best=2, normals=normals, coarse_scan=(KDTree(tree.data[sub]),
+                                                                                          normals[sub]))
+    np.testing.assert_allclose(r, rot, atol=0.02)
+    default = fit_poses(pts, tree, starts, n_best=2, normals=normals)
+    assert rms == pytest.approx(default[0][2], abs=1e-3)
+    same = fit_poses(pts, tree, starts, n_best=2, normals=normals, coarse_scan=(tree, normals))
+    for x, y in zip(same, default):
+        for u, v in zip(x, y):
+            np.testing.assert_array_equal(u, v)
+    # no refinement (fine_iters=0): the coarse poses with their whole-scan residual
+    (r0, _, rms0), *_ = fit_poses(pts, tree, starts, n_best=2, normals=normals, fine_iters=0)
+    assert rms0 >= rms - 1e-9

@@ -147,17 +147,20 @@ def batch_icp(points: np.ndarray, tree, starts, iters: int = 8, keep: float = 0.
 
 def fit_poses(points: np.ndarray, tree, starts, n_best: int = 3, min_angle_deg: float = 30.0,
               coarse_iters: int = 8, fine_iters: int = 40, keep: float = 0.8, normals=None,
-              coarse_stride: int = 3, scales=None):
+              coarse_stride: int = 3, scales=None, coarse_scan=None):
     """Up to ``n_best`` refined poses [(R, t, rms), ...] from the best coarse starts whose
     rotations differ by more than ``min_angle_deg`` (a face and its upside-down image can fit
     the trimmed residual almost equally well; the caller decides). The coarse stage runs all
     starts together (:func:`batch_icp`) on every ``coarse_stride``-th point (it only ranks the
     starts; nearest-neighbour queries far off the surface, as most starts are, cost ~10x a
     near one), the refinement :func:`trimmed_icp` on all points. ``scales`` (S,): the held
-    size of each start (:func:`batch_icp`); then each pose is (R, t, rms, scale)."""
+    size of each start (:func:`batch_icp`); then each pose is (R, t, rms, scale). ``coarse_scan``:
+    optional (KD-tree, unit normals) of a subsampled scan for the coarse stage (its off-surface
+    queries are most of the search's cost and a sparser tree answers them faster)."""
     ss = None if scales is None else np.asarray(scales, dtype=np.float64)
-    rms, rs, ts = batch_icp(points[::max(1, int(coarse_stride))], tree, starts, iters=coarse_iters, keep=keep,
-                            normals=normals, scales=ss)
+    c_tree, c_normals = (tree, normals) if coarse_scan is None else coarse_scan
+    rms, rs, ts = batch_icp(points[::max(1, int(coarse_stride))], c_tree, starts, iters=coarse_iters, keep=keep,
+                            normals=c_normals, scales=ss)
     chosen = []
     cos_min = np.cos(np.radians(min_angle_deg))
     for k in np.argsort(rms, kind="stable"):

@@ -91,6 +91,9 @@ class PredictOptions:
     pose_score: str = "trimmed"       # whole-template score of a pose: "trimmed" RMS or "truncated" (start.py)
     poses_per_tip: int = 2            # >0: each nose-tip candidate's own best poses (0: the n_poses best overall)
     pose_height_weight: float = 0.2   # with poses_per_tip: score minus this x the candidate's protrusion (mm/mm)
+    refine_all_poses: bool = True     # the upper-face ICP refines every pose before the scores (False: the winner)
+    pose_score_spacing: float = 4.0   # the whole-template score's points: the template subsampled at this spacing, mm
+    coarse_scan_spacing: float = 0.0  # >0: the coarse pose ranking on the scan subsampled at this spacing, mm (0: all)
     localise: str = "patch"           # "patch" (default: local template fits) or "bp" (paper: FP + BP)
     patch_radius: float = 20.0        # template patch around the subalare and the subnasal
     tip_patch_radius: float = 25.0    # the nose tip's (its 20 mm patch slides along the ridge)

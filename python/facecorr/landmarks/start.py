@@ -105,34 +105,48 @@ def protrusion_pose(mesh, model, opts, timer, name):
                 sc += [s] * int(opts.sweep_angles)
             groups.append((h, st, sc))
     with timer("pose"):
+        # the upper-face ICP refines every pose before the scores (40 iterations each), or only
+        # the winner, the whole-template score's own ICP having moved the others from coarse
+        fine = 40 if opts.refine_all_poses else 0
+        coarse = None
+        if opts.coarse_scan_spacing > 0:
+            from ..geometry.spatial import KDTree
+
+            sub = voxel_subsample(mesh.vertices, np.arange(mesh.n_vertices), float(opts.coarse_scan_spacing))
+            coarse = (KDTree(mesh.vertices[sub]), mesh.vertex_normals[sub])
         if opts.poses_per_tip > 0:
             # each candidate keeps its own best poses: on a raw scan the template's upper face can
             # fit a shoulder or a hairy scalp better, in the coarse ranking, than an unusual face
             poses = [p + (h,) for h, st, sc in groups
-                     for p in _fit_poses_sized(mesh, model, st, sc, int(opts.poses_per_tip))]
+                     for p in _fit_poses_sized(mesh, model, st, sc, int(opts.poses_per_tip), fine, coarse)]
         else:
             poses = [p + (np.nan,) for p in _fit_poses_sized(mesh, model, [x for g in groups for x in g[1]],
-                                                             [x for g in groups for x in g[2]], int(opts.n_poses))]
+                                                             [x for g in groups for x in g[2]], int(opts.n_poses),
+                                                             fine, coarse)]
         # A face and its upside-down image can fit the upper face almost equally well (forehead
         # on the chin); the whole template (mouth and chin too) tells them apart: measured on
         # the 2 upside-down results of the 350 test scans, the right pose had the lowest
         # whole-template residual while its upper-face residual was 0.1-0.15 mm higher.
-        full = _template_surface_points(model)
+        full = _template_surface_points(model, float(opts.pose_score_spacing))
         scores = [_pose_score(full, mesh.kdtree, pr, pt, mesh.vertex_normals, opts.pose_score, s)
                   for pr, pt, _, s, _ in poses]
         if opts.pose_height_weight > 0 and opts.poses_per_tip > 0:
             # a nose tip stands out of its ball: a pose seeded at a higher protrusion is likelier
             scores = [sc - float(opts.pose_height_weight) * p[4] for sc, p in zip(scores, poses)]
         r, t, rms, s, _ = poses[int(np.argmin(scores))]
+        if not fine:
+            r, t, rms, _ = trimmed_icp(s * model.icp_points, mesh.kdtree, r, t, iters=40, normals=mesh.vertex_normals)
     return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips],
                            pose_rms=[p[2] for p in poses], pose_full_rms=scores, pose_scale=s)
 
 
-def _fit_poses_sized(mesh, model, starts, scales, n_best):
+def _fit_poses_sized(mesh, model, starts, scales, n_best, fine_iters=40, coarse_scan=None):
     """:func:`.pose.fit_poses` of the template's upper face from ``starts`` at the template sizes
-    ``scales`` (one per start): [(R, t, rms, size), ...]."""
+    ``scales`` (one per start), ``fine_iters`` refinement iterations, the coarse stage on
+    ``coarse_scan`` (a subsampled scan's tree and normals; None: the scan): [(R, t, rms, size), ...]."""
     if all(s == 1.0 for s in scales):  # the rigid search (bitwise as before)
         return [(pr, pt, rms, 1.0) for pr, pt, rms in
-                fit_poses(model.icp_points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals)]
+                fit_poses(model.icp_points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
+                          fine_iters=fine_iters, coarse_scan=coarse_scan)]
     return fit_poses(model.icp_points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
-                     scales=np.array(scales))
+                     scales=np.array(scales), fine_iters=fine_iters, coarse_scan=coarse_scan)

@@ -148,6 +148,12 @@ class ExpressionOptions:
     damping: str = "reversal"
     overrelax: float = 1.5
     identity_prior_decay: float = 0.5  # the identity prior's factor per round
+    # Anderson acceleration of the rounds once the identity prior has annealed (0 = off; n = the
+    # last n rounds mixed): the ICP's slow creep is a fixed-point iteration, and extrapolating
+    # from its last steps (Walker & Ni 2011; AA-ICP, Pavlov et al. 2018) reaches its end in fewer
+    # rounds. An extrapolation whose energy, with its own matches, is above the plain round's is
+    # undone and the history restarted (Zhang et al. 2021, "Fast and Robust ICP").
+    anderson: int = 0
     # Normal-aware matches (``feature_lambda`` 0 = off; rust/src/soft_match.rs): the closest point
     # moved along its tangent plane towards the scan vertices within ``feature_radius`` mm whose
     # normals match the template vertex's (weights exp(-(|v - p|² + λ² |n_v - n_p|²) / 2τ²), λ =
@@ -289,6 +295,56 @@ def _normal_equations(basis: _BlendBasis, gram: _WeightedGram, lin, w, da, qn, v
     return h, g, const
 
 
+class _Anderson:
+    """Anderson acceleration (type II, depth ``m``) of the expression fit's rounds, seen as a
+    fixed-point map z -> G(z) of z = (α, β, vec T): the next point is G(z_k) − ΔG γ with γ the
+    least-squares fit of the residual f_k = G(z_k) − z_k by the last ``m`` differences ΔF.
+    Bounded weights are clipped into their box and T's linear part projected back to a similarity
+    (s R: the fit's alignments are similarities, which the point-to-point term relies on)."""
+
+    def __init__(self, m: int, k: int, lo, hi):
+        self.m, self.k, self.lo, self.hi = m, k, lo, hi
+        self.z, self.g = [], []
+        self.pending = None  # (plain α, plain T, plain energy) behind the last extrapolation
+
+    def restart(self):
+        self.z, self.g, self.pending = [], [], None
+
+    def check(self, energy_here: float):
+        """None if the extrapolated point's energy (with its own matches) is no higher than the
+        plain round's; else that round's (α, T), and the history restarts."""
+        plain, self.pending = self.pending, None
+        if energy_here <= plain[2]:
+            return None
+        self.restart()
+        return plain[0], plain[1]
+
+    def step(self, alpha, t_start, a_plain, t_plain, energy):
+        """(α, T) to go on from, after the plain round (α, T_start) -> (a_plain, t_plain)."""
+        self.z.append(np.concatenate([alpha, t_start.ravel()]))
+        self.g.append(np.concatenate([a_plain, t_plain.ravel()]))
+        self.z, self.g = self.z[-(self.m + 1):], self.g[-(self.m + 1):]
+        if len(self.z) < 2:
+            return a_plain, t_plain
+        f = np.array(self.g) - np.array(self.z)
+        df, dg = np.diff(f, axis=0), np.diff(np.array(self.g), axis=0)
+        gamma, *_ = np.linalg.lstsq(df.T, f[-1], rcond=None)
+        z = self.g[-1] - dg.T @ gamma
+        if not np.isfinite(z).all():
+            self.restart()
+            return a_plain, t_plain
+        a = np.clip(z[:self.k], self.lo, self.hi)
+        t = z[self.k:].reshape(3, 4)
+        u, sv, vt = np.linalg.svd(t[:, :3])
+        r = u @ vt
+        if np.linalg.det(r) < 0:
+            self.restart()
+            return a_plain, t_plain
+        t = np.hstack([float(sv.mean()) * r, t[:, 3:]])
+        self.pending = (a_plain, t_plain, energy)
+        return a, t
+
+
 def _refit_affine(p0, q, qn, w, landmarks, landmark_weight):
     """Least-squares 3x4 T minimising Σ w ⟨q − T p0, n⟩² + μ Σ_l ‖T l̄ − l‖² (None if singular)."""
     ph = np.hstack([p0, np.ones((len(p0), 1))])
@@ -364,6 +420,7 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
     # every sample_stride-th template vertex carries data (1 = all; the fit has K unknowns, not 3N)
     sample = np.zeros(template.n_vertices, dtype=bool)
     sample[:: max(1, int(o.sample_stride))] = True
+    data = np.flatnonzero(sample & keep)  # the vertices that can carry data
     lo = np.where(np.arange(k) < k_expr, 0.0, -np.inf)
     hi = np.where(np.arange(k) < k_expr, 1.0, np.inf)
     alpha = np.zeros(k)
@@ -376,20 +433,26 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
     prev_step = np.inf
     prev_delta = None
     rounds = []
+    aa = _Anderson(int(o.anderson), k, lo, hi) if o.anderson > 0 and not o.refine_affine else None
     for _ in range(int(o.max_rounds)):
+        T_start = T
         lin = T[:, :3]
         p = base + basis.offsets(alpha) @ lin.T
         pn = vertex_normals(p, faces)
-        _, _, q, dist, qn, b_share = surface.closest(p, int(o.surface_k))
+        # matches of the data-carrying vertices only (the others weigh 0): q, qn 0 elsewhere
+        q, qn = np.zeros_like(p), np.zeros_like(p)
+        ps = p[data]
+        _, _, q[data], dist, qn[data], b_share = surface.closest(ps, int(o.surface_k))
         if o.feature_lambda > 0.0:
-            q = surface.soft_targets(p, pn, int(o.surface_k), float(o.feature_radius), float(o.feature_lambda),
-                                     float(o.feature_tau))
-        w_match = match_weights(np.einsum("ij,ij->i", pn, qn), dist, b_share, angle_req, o.angle_band_deg,
-                                o.max_distance, o.distance_band, o.reject_boundary) * keep
+            q[data] = surface.soft_targets(ps, pn[data], int(o.surface_k), float(o.feature_radius),
+                                           float(o.feature_lambda), float(o.feature_tau))
+        w_match = np.zeros(template.n_vertices)
+        w_match[data] = match_weights(np.einsum("ij,ij->i", pn[data], qn[data]), dist, b_share, angle_req[data],
+                                      o.angle_band_deg, o.max_distance, o.distance_band, o.reject_boundary)
         valid = w_match > 0.0
         # shares of valid matches (weighted: continuous in the input)
-        f_chin = float(w_match[chin].mean()) if chin.any() else 1.0
-        f_mouth = float(w_match[mouth].mean()) if mouth.any() else 1.0
+        f_chin = float(w_match[chin & sample].mean()) if (chin & sample).any() else 1.0
+        f_mouth = float(w_match[mouth & sample].mean()) if (mouth & sample).any() else 1.0
         if o.weights == "paper":
             if stage == 1 and (f_chin >= o.chin_start or stage_rounds >= o.max_stage_rounds):
                 stage, stage_rounds, prev_step = 2, 0, np.inf
@@ -409,6 +472,14 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
         h, g, const = _normal_equations(basis, gram, lin, w_vert, q - base, qn, p - ctr, lam,
                                         bool(o.refine_rigid))
         n_x = len(g)
+        if aa is not None and aa.pending is not None:
+            # the energy at the extrapolated point with its own matches, against the plain round's
+            x_here = np.concatenate([alpha, np.zeros(n_x - k)])
+            back = aa.check(float(x_here @ h @ x_here - 2.0 * g @ x_here + const))
+            if back is not None:  # worse: back to the plain round's result, history restarted
+                alpha, T = back
+                base = a0 @ T[:, :3].T + T[:, 3]
+                continue
         w_total = float(w_vert.sum())
         # optional ridge prior μ W ‖α‖² (W = total data weight, so μ is in mm² per vertex)
         # and the identity prior μ_id ‖β‖² (β ~ N(0, 1) a priori; μ_id in mm²), which relaxes
@@ -449,7 +520,12 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
         delta = a_new - alpha
         step = float(np.abs(delta * np.where(np.arange(k) < k_expr, 1.0, 0.1)).max())
         reverses = prev_delta is not None and float(delta @ prev_delta) < 0.0
-        if step > 0.9 * prev_step and (o.damping == "growth" or reverses):
+        accelerate = (aa is not None and o.weights == "uniform"
+                      and (o.identity_prior_start is None or mu_id <= float(o.identity_prior)))
+        if accelerate:
+            a_new, T = aa.step(alpha, T_start, a_new, T, energy)
+            base = a0 @ T[:, :3].T + T[:, 3]
+        elif step > 0.9 * prev_step and (o.damping == "growth" or reverses):
             # The valid sets (and with them the paper's region weights) flip back and forth
             # between two states: damp by taking half the step (a convex combination stays in [0, 1]).
             a_new = 0.5 * (alpha + a_new)

@@ -111,6 +111,9 @@ class RegisterOptions:
     jaw_starts: tuple = (0.0, 0.3)
     # None: every start runs to the end; n: after n rounds only the best start goes on
     jaw_select_rounds: object = 10
+    # With jaw_select_rounds: the starts' rounds match every n-th template vertex only (they only
+    # have to tell the starts apart; 1: every vertex); the best start goes on with every vertex.
+    jaw_start_stride: int = 1
     # Identity modes fitted with the expression (see identity.py): None, "packaged" (the basis
     # shipped with facecorr), a path or an IdentityBasis; identity_modes keeps the first modes only.
     identity: object = "packaged"
@@ -153,7 +156,7 @@ def _jaw_alpha(names, jaw) -> np.ndarray:
 
 
 def _fit_expression_multistart(template, transform, mesh, landmarks, jaw_starts, expr_opts: ExpressionOptions,
-                               identity=None, select_rounds=None):
+                               identity=None, select_rounds=None, start_stride: int = 1):
     """:func:`fit_expression` from each starting jawOpen weight; the best by lower-face chamfer.
 
     With ``select_rounds`` the starts run that many rounds only, and the best one continues alone
@@ -166,7 +169,10 @@ def _fit_expression_multistart(template, transform, mesh, landmarks, jaw_starts,
             return fit_expression(template, transform, mesh, landmarks=landmarks, identity=identity,
                                   alpha0=_jaw_alpha(names, jaw_starts[0] if jaw_starts else 0.0), options=expr_opts)
         max_rounds = int(expr_opts.max_rounds)
-        first = expr_opts if select_rounds is None else replace(expr_opts, max_rounds=min(int(select_rounds), max_rounds))
+        coarse = select_rounds is not None and int(start_stride) > 1
+        first = expr_opts if select_rounds is None else replace(
+            expr_opts, max_rounds=min(int(select_rounds), max_rounds),
+            sample_stride=int(start_stride) if coarse else expr_opts.sample_stride)
 
         def fit_from(jaw):
             fit = fit_expression(template, transform, mesh, landmarks=landmarks, alpha0=_jaw_alpha(names, jaw),
@@ -182,10 +188,12 @@ def _fit_expression_multistart(template, transform, mesh, landmarks, jaw_starts,
             fits = list(pool.map(fit_from, jaw_starts))
         best = min(fits, key=lambda fs: fs[1])[0]
         done = len(best.rounds)
-        if done < max_rounds and not (best.rounds and best.rounds[-1].get("stopped")):
+        # (a coarse start always goes on: it has matched a part of the template only)
+        if coarse or (done < max_rounds and not (best.rounds and best.rounds[-1].get("stopped"))):
             rest = fit_expression(template, best.transform, mesh, landmarks=landmarks, alpha0=best.alpha,
                                   identity=identity, beta0=best.identity_weights, round_offset=done,
-                                  options=replace(expr_opts, max_rounds=max_rounds - done))
+                                  options=replace(expr_opts, max_rounds=max(max_rounds - done, 1 + int(expr_opts.energy_window))
+                                                  if coarse else max_rounds - done))
             rest.rounds = best.rounds + rest.rounds
             best = rest
         best.seconds = time.perf_counter() - t0
@@ -258,7 +266,7 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
     identity = _identity_basis(opts.identity, opts.identity_modes, template.n_vertices)
     if opts.fit_expression:
         expr = _fit_expression_multistart(template, transform, mesh, (ids, scan_lm), tuple(opts.jaw_starts),
-                                          opts.expression, identity, opts.jaw_select_rounds)
+                                          opts.expression, identity, opts.jaw_select_rounds, opts.jaw_start_stride)
         transform = expr.transform
         timings["expression"] = expr.seconds
         details["expression_rounds"] = expr.rounds
