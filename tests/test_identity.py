@@ -171,9 +171,10 @@ def test_a_fit_continued_where_it_stopped_matches_one_long_fit():
     alpha[list(tpl.blendshape_names).index("jawOpen")] = 0.4
     scan, r, t = _posed(tpl, alpha, np.array([1.0, 0.5, -1.0]), basis, rng)
     start = np.hstack([r, (t + [1.0, 0.0, 0.0])[:, None]])
-    # (no over-relaxation and no energy stop: they look at earlier rounds, which a continuation starts without)
+    # (no over-relaxation, Anderson mixing or energy stop: they look at earlier rounds, which a
+    # continuation starts without)
     opts = dict(identity=basis, identity_prior=1.0, identity_prior_start=100.0, alpha_tol=0.0, overrelax=1.0,
-                energy_rtol=0.0)
+                energy_rtol=0.0, anderson=0)
     whole = fit_expression(tpl, start, scan, max_rounds=30, **opts)
     part = fit_expression(tpl, start, scan, max_rounds=3, **opts)
     rest = fit_expression(tpl, part.transform, scan, alpha0=part.alpha, beta0=part.identity_weights,

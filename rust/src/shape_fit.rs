@@ -10,7 +10,7 @@
 //!
 //! Choices where the paper is vague (measured in BENCHMARKS.md, "Registration (issue 5)"):
 //! * **Correspondences.** q_i is the closest point of the scan's *surface* to p̃_i (among the
-//!   triangles around its `surface_k` nearest vertices, then a walk to the closest one;
+//!   triangles around its `surface_k` nearest vertices (default 1), then a walk to the closest one;
 //!   [`crate::surface`]), n_i the scan's vertex normals interpolated there; `surface_k` = 0 is
 //!   the paper's nearest scan vertex. The weight w_i ∈ [0, 1] is the paper's three tests made
 //!   ramps ([`match_weight`]): the angle between the deformed template's normal at i and n_i
@@ -120,7 +120,7 @@ impl Default for ShapeFitOptions {
             normal_angle_deg: 80.0,
             max_distance: 5.0,
             reject_boundary: true,
-            surface_k: 3,
+            surface_k: 1,
             angle_band_deg: 10.0,
             distance_band: 1.0,
             w_landmark: 0.0,

@@ -127,7 +127,9 @@ class ExpressionOptions:
     # 0 = the nearest vertex, the paper), and the normal, distance and boundary tests are ramps
     # (± ``angle_band_deg``, ``distance_band`` mm below the cap, × (1 − boundary share)), so a
     # tiny change of the input changes the fit a little (issue 13, #15; `geometry.closest`).
-    surface_k: int = 3
+    # 1 since issue 17: the triangles around the nearest vertex give the same fit as 3 (region means
+    # within 0.5 %, BENCHMARKS.md "Throughput, third pass") at half the query time.
+    surface_k: int = 1
     angle_band_deg: float = 10.0
     distance_band: float = 1.0
     lip_rim_rings: int = 1            # no data on the inner lip rim + this many rings (-1 = keep)
@@ -153,7 +155,7 @@ class ExpressionOptions:
     # from its last steps (Walker & Ni 2011; AA-ICP, Pavlov et al. 2018) reaches its end in fewer
     # rounds. An extrapolation whose energy, with its own matches, is above the plain round's is
     # undone and the history restarted (Zhang et al. 2021, "Fast and Robust ICP").
-    anderson: int = 0
+    anderson: int = 5
     # Normal-aware matches (``feature_lambda`` 0 = off; rust/src/soft_match.rs): the closest point
     # moved along its tangent plane towards the scan vertices within ``feature_radius`` mm whose
     # normals match the template vertex's (weights exp(-(|v - p|² + λ² |n_v - n_p|²) / 2τ²), λ =

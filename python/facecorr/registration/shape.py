@@ -49,7 +49,9 @@ class ShapeFitOptions:
     # ``surface_k`` nearest vertices; 0 = the nearest vertex, the paper), and the three tests
     # above are ramps, not steps (± ``angle_band_deg`` about the angle, ``distance_band`` mm below
     # the cap, × (1 − boundary share)): the fit is then continuous in its input (issue 13, #15).
-    surface_k: int = 3
+    # 1 since issue 17: the triangles around the nearest vertex give the same fit as 3 (region means
+    # within 0.5 %, BENCHMARKS.md "Throughput, third pass") at half the query time.
+    surface_k: int = 1
     angle_band_deg: float = 10.0
     distance_band: float = 1.0
     w_landmark: float = 0.0         # ω of the landmark term (the paper: none)
