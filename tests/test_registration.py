@@ -189,6 +189,33 @@ def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch, f
     assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
 
 
+def test_correspond_tries_the_start_searchs_other_poses_after_an_implausible_fit(monkeypatch):
+    """First prediction wrong (turned 35 degrees) and so is the wider search; the start search's
+    alternative pose gives the right landmarks: its fit explains the scan best and is kept."""
+    import facecorr.landmarks as lm_pkg
+    from facecorr.landmarks.predict import LandmarkResult
+    from facecorr.pipeline import correspond
+
+    tpl = load_template()
+    mesh, lms, gt, _ = make_scan(3)
+    alt = (np.eye(3), np.zeros(3), 1.0, 1.0)  # a token pose: the fake prediction below reads it
+    calls = []
+
+    def fake_predict(mesh_, model=None, options=None, start_pose=None):
+        calls.append("alternative" if start_pose is not None else "search")
+        pos = lms if start_pose is not None else _turned_about_the_nose(lms, 35.0)
+        shift = mesh_.vertices[0] - mesh.vertices[0]
+        pos = {k: np.asarray(v) + shift for k, v in pos.items()}
+        return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[],
+                              timings_s={"total": 0.0}, debug={"alternative_poses": [alt]})
+
+    monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
+    res = correspond(mesh, template=tpl)
+    assert calls == ["search", "alternative", "search"]  # first, the alternative pose, the wider search
+    assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
+    assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
+
+
 def test_lower_face_chamfer_is_the_full_query_value():
     """The jaw-start choice queries only the scan vertices in the lower face's box grown by 15 mm:
     the value is exactly that of querying every scan vertex (the previous code, here as reference)."""

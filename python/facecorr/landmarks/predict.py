@@ -94,6 +94,11 @@ class PredictOptions:
     refine_all_poses: bool = True     # the upper-face ICP refines every pose before the scores (False: the winner)
     pose_score_spacing: float = 4.0   # the whole-template score's points: the template subsampled at this spacing, mm
     coarse_scan_spacing: float = 0.0  # >0: the coarse pose ranking on the scan subsampled at this spacing, mm (0: all)
+    # The next best poses that read the scan differently (posed landmark graph ≥ this many mm
+    # apart, mean of the 8), kept as debug["alternative_poses"] [(R, t, icp rms, size)]: the
+    # pipeline registers from them when its fit is implausible (pipeline/correspond.py).
+    n_alternative_poses: int = 2
+    alternative_pose_distance: float = 10.0
     localise: str = "patch"           # "patch" (default: local template fits) or "bp" (paper: FP + BP)
     patch_radius: float = 20.0        # template patch around the subalare and the subnasal
     tip_patch_radius: float = 25.0    # the nose tip's (its 20 mm patch slides along the ridge)
@@ -161,6 +166,9 @@ class LandmarkResult:
         if "pose" in debug:
             r, t = debug["pose"]
             debug["pose"] = (r, np.asarray(t) + offset)
+        if "alternative_poses" in debug:
+            debug["alternative_poses"] = [(r, np.asarray(t) + offset, rms, size)
+                                          for r, t, rms, size in debug["alternative_poses"]]
         return replace(self, positions={k: np.asarray(v) + offset for k, v in self.positions.items()}, debug=debug)
 
 
@@ -180,7 +188,8 @@ class _Timer:
         return _C()
 
 
-def predict_landmarks(mesh, model=None, options: PredictOptions | None = None, **overrides) -> "LandmarkResult":
+def predict_landmarks(mesh, model=None, options: PredictOptions | None = None, start_pose=None,
+                      **overrides) -> "LandmarkResult":
     """Predict the 8 landmarks of a face scan.
 
     Parameters
@@ -189,6 +198,9 @@ def predict_landmarks(mesh, model=None, options: PredictOptions | None = None, *
         and cached on it for the registration.
     model : LandmarkModel, a path, or None for the packaged default.
     options : PredictOptions (default ``PredictOptions()``).
+    start_pose : None, or a pose (R (3, 3), t (3,) mm, icp rms mm, template size) in the scan's
+        frame, e.g. one of another prediction's ``debug["alternative_poses"]``: the landmarks are
+        localised from it, without the start search or a retry.
     **overrides : fields of :class:`PredictOptions` to change, e.g. ``start_search="paper"``.
 
     Returns
@@ -205,6 +217,9 @@ def predict_landmarks(mesh, model=None, options: PredictOptions | None = None, *
     if not isinstance(model, LandmarkModel):
         model = load_model(model)
     work, offset = mesh.centred_outward()
+    if start_pose is not None:
+        r, t, rms, size = start_pose
+        return _predict_once(work, model, opts, (r, np.asarray(t, float) - offset, rms, size)).moved(offset)
     best = first = _predict_once(work, model, opts)
     if opts.retry and _failed(first):
         second = _predict_once(work, model, opts.wider())
@@ -215,8 +230,9 @@ def predict_landmarks(mesh, model=None, options: PredictOptions | None = None, *
     return best.moved(offset)
 
 
-def _predict_once(mesh, model, opts: PredictOptions) -> "LandmarkResult":
-    """One prediction with fixed settings (see :func:`predict_landmarks`)."""
+def _predict_once(mesh, model, opts: PredictOptions, start_pose=None) -> "LandmarkResult":
+    """One prediction with fixed settings (see :func:`predict_landmarks`), from ``start_pose``
+    (R, t, rms, size) if given."""
     timer = _Timer()
     name = mesh.source or "scan"
     with timer("prepare"):
@@ -228,7 +244,10 @@ def _predict_once(mesh, model, opts: PredictOptions) -> "LandmarkResult":
         with timer("features"):
             feat = ScanFeatures(mesh, model.radii)
     flags = []
-    if opts.start_search == "protrusion":
+    if start_pose is not None:
+        r, t, rms, size = start_pose
+        start_debug = dict(pose_scale=float(size))
+    elif opts.start_search == "protrusion":
         from .start import protrusion_pose
 
         r, t, rms, start_debug = protrusion_pose(mesh, model, opts, timer, name)

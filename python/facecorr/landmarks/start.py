@@ -133,11 +133,34 @@ def protrusion_pose(mesh, model, opts, timer, name):
         if opts.pose_height_weight > 0 and opts.poses_per_tip > 0:
             # a nose tip stands out of its ball: a pose seeded at a higher protrusion is likelier
             scores = [sc - float(opts.pose_height_weight) * p[4] for sc, p in zip(scores, poses)]
-        r, t, rms, s, _ = poses[int(np.argmin(scores))]
-        if not fine:
-            r, t, rms, _ = trimmed_icp(s * model.icp_points, mesh.kdtree, r, t, iters=40, normals=mesh.vertex_normals)
-    return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips],
-                           pose_rms=[p[2] for p in poses], pose_full_rms=scores, pose_scale=s)
+        order = [int(i) for i in np.argsort(scores)]
+        chosen = [order[0]] + _distinct_poses(model, poses, order, int(opts.n_alternative_poses),
+                                              float(opts.alternative_pose_distance))
+        out = []
+        for i in chosen:
+            r, t, rms, s, _ = poses[i]
+            if not fine:
+                r, t, rms, _ = trimmed_icp(s * model.icp_points, mesh.kdtree, r, t, iters=40,
+                                           normals=mesh.vertex_normals)
+            out.append((r, t, rms, s))
+    (r, t, rms, s), alternatives = out[0], out[1:]
+    return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips], pose_rms=[p[2] for p in poses],
+                           pose_full_rms=scores, pose_scale=s, alternative_poses=alternatives)
+
+
+def _distinct_poses(model, poses, order, n: int, distance: float) -> list:
+    """Indices of the ``n`` best poses after the winner ``order[0]`` (``order``: best first) whose
+    posed landmark graph lies ≥ ``distance`` mm (mean over the 8 points) from the winner's and
+    from every one taken before: other readings of the scan, not the same pose again."""
+    graph = [s * model.graph_points @ r.T + t for r, t, _, s, _ in poses]
+    taken, out = [order[0]], []
+    for i in order[1:]:
+        if len(out) >= n:
+            break
+        if all(np.linalg.norm(graph[i] - graph[j], axis=1).mean() >= distance for j in taken):
+            taken.append(i)
+            out.append(i)
+    return out
 
 
 def _fit_poses_sized(mesh, model, starts, scales, n_best, fine_iters=40, coarse_scan=None):

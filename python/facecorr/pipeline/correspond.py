@@ -214,7 +214,8 @@ class CorrespondOptions:
     right for landmarks a user supplies, harmful for predicted ones (2-3 mm off; BENCHMARKS.md,
     "Where the defaults come from"). ``refit_on_implausible``: a fit the model cannot explain
     (:meth:`RegistrationResult.implausible`) is redone once from landmarks predicted with the wider
-    start search (:meth:`PredictOptions.wider`), and the better-explained fit kept.
+    start search (:meth:`PredictOptions.wider`) and from the start search's next best distinct
+    poses (``PredictOptions.n_alternative_poses``), and the best-explained fit kept (lowest fit RMS).
     """
 
     predict: PredictOptions = field(default_factory=PredictOptions)
@@ -292,14 +293,20 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         # already retried that search and kept its first answer (both failed its own checks):
         # the registration's residual judges the two better than the landmark checks.
         t1 = time.perf_counter()
-        pred2 = predict_landmarks(work, model=model, options=replace(opts.predict.wider(), retry=False))
-        pos2 = {k: np.asarray(v, float) for k, v in pred2.positions.items()}
-        reg2 = register(work, pos2, template=template, options=reg_opts)
+        # The start search's other readings of the scan go first: on raw crops and unusual faces
+        # a shoulder or a hairy scalp can outscore the face in the rigid ranking, while the
+        # deformable fit from the face explains the scan far better (BENCHMARKS.md, issue 14).
+        tries = [dict(start_pose=p) for p in pred.debug.get("alternative_poses", [])]
+        tries.append(dict(options=replace(opts.predict.wider(), retry=False)))
+        for how in tries:
+            pred2 = predict_landmarks(work, model=model, **({"options": opts.predict} | how))
+            pos2 = {k: np.asarray(v, float) for k, v in pred2.positions.items()}
+            reg2 = register(work, pos2, template=template, options=reg_opts)
+            if reg2.details.get("fit_rms_mm", np.inf) < reg.details.get("fit_rms_mm", np.inf):
+                reg, positions, confidence = reg2, pos2, dict(pred2.confidence)
+                flags = list(pred2.flags)  # the first prediction's doubts no longer apply
+                doubts = reg.implausible()
         timings["refit"] = time.perf_counter() - t1
-        if reg2.details.get("fit_rms_mm", np.inf) < reg.details.get("fit_rms_mm", np.inf):
-            reg, positions, confidence = reg2, pos2, dict(pred2.confidence)
-            flags = list(pred2.flags)  # the first prediction's doubts no longer apply
-            doubts = reg.implausible()
         flags.append("refit_wider_search_after_implausible_fit")
     if landmarks is None and not doubts:
         for _ in range(int(opts.refine_passes)):
