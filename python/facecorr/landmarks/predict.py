@@ -85,6 +85,7 @@ class PredictOptions:
     # Nose-tip candidates come from the pieces of at least this share of the largest piece's area
     # (0: every piece): glasses frames and specks float apart from the face (protrusion.py).
     nose_piece_fraction: float = 0.2
+    protrusion_spacing: float = 3.0   # the scan voxel-subsampled at this spacing for the protrusion, mm
     protrusion_median_k: int = 13     # heights smoothed by the median of this many neighbours (hair spikes)
     n_poses: int = 5                  # distinct coarse poses refined and scored by the whole template
     pose_scales: tuple = (1.0,)       # template sizes the pose search starts from (faces differ by ±20 %)
@@ -92,6 +93,8 @@ class PredictOptions:
     poses_per_tip: int = 2            # >0: each nose-tip candidate's own best poses (0: the n_poses best overall)
     pose_height_weight: float = 0.2   # with poses_per_tip: score minus this x the candidate's protrusion (mm/mm)
     refine_all_poses: bool = True     # the upper-face ICP refines every pose before the scores (False: the winner)
+    pose_coarse_iters: int = 8        # ICP iterations of the coarse ranking of the sweep starts
+    pose_score_iters: int = 10        # ICP iterations of the whole-template score from each pose
     pose_score_spacing: float = 4.0   # the whole-template score's points: the template subsampled at this spacing, mm
     coarse_scan_spacing: float = 0.0  # >0: the coarse pose ranking on the scan subsampled at this spacing, mm (0: all)
     # The next best poses that read the scan differently (posed landmark graph ≥ this many mm

@@ -55,13 +55,13 @@ def _template_tip_plane_normal(model, radius: float) -> np.ndarray:
     return n if n @ model.icp_tip_normal >= 0 else -n
 
 
-def _pose_score(points, tree, r, t, normals, kind: str, scale: float = 1.0) -> float:
-    """How well the posed template ``points`` (P, 3) fit the scan (lower is better), after 10
+def _pose_score(points, tree, r, t, normals, kind: str, scale: float = 1.0, iters: int = 10) -> float:
+    """How well the posed template ``points`` (P, 3) fit the scan (lower is better), after ``iters``
     trimmed ICP iterations at the fixed ``scale``: ``"trimmed"`` the RMS of the closest 80 %
     (mm); ``"truncated"`` the mean of min(d, 3 mm)² over all points (mm²), which a region the
     template cannot reach (a beard, hair, clothing) caps instead of hiding it by a fixed share."""
     pts = scale * points
-    r, t, rms, d = trimmed_icp(pts, tree, r, t, iters=10, normals=normals)
+    r, t, rms, d = trimmed_icp(pts, tree, r, t, iters=iters, normals=normals)
     if kind == "trimmed":
         return rms
     return float(np.mean(np.minimum(np.asarray(d), TRUNCATION_MM) ** 2))
@@ -88,7 +88,8 @@ def protrusion_pose(mesh, model, opts, timer, name):
             areas = mesh.component_areas
             keep = np.isin(mesh.components, np.flatnonzero(areas >= float(opts.nose_piece_fraction) * areas[0]))
         tips = nose_tip_candidates(mesh.vertices, mesh.vertex_normals, k=int(opts.n_tip_candidates), radius=radius,
-                                   keep=keep, median_k=int(opts.protrusion_median_k))
+                                   keep=keep, median_k=int(opts.protrusion_median_k),
+                                   spacing=float(opts.protrusion_spacing))
         if not tips or tips[0][1] < float(opts.min_protrusion):
             top = f"{tips[0][1]:.1f} mm" if tips else "none"
             raise LandmarkError(f"{name}: nothing protrudes like a nose (highest protrusion {top}, "
@@ -118,18 +119,19 @@ def protrusion_pose(mesh, model, opts, timer, name):
             # each candidate keeps its own best poses: on a raw scan the template's upper face can
             # fit a shoulder or a hairy scalp better, in the coarse ranking, than an unusual face
             poses = [p + (h,) for h, st, sc in groups
-                     for p in _fit_poses_sized(mesh, model, st, sc, int(opts.poses_per_tip), fine, coarse)]
+                     for p in _fit_poses_sized(mesh, model, st, sc, int(opts.poses_per_tip), fine, coarse,
+                                               int(opts.pose_coarse_iters))]
         else:
             poses = [p + (np.nan,) for p in _fit_poses_sized(mesh, model, [x for g in groups for x in g[1]],
                                                              [x for g in groups for x in g[2]], int(opts.n_poses),
-                                                             fine, coarse)]
+                                                             fine, coarse, int(opts.pose_coarse_iters))]
         # A face and its upside-down image can fit the upper face almost equally well (forehead
         # on the chin); the whole template (mouth and chin too) tells them apart: measured on
         # the 2 upside-down results of the 350 test scans, the right pose had the lowest
         # whole-template residual while its upper-face residual was 0.1-0.15 mm higher.
         full = _template_surface_points(model, float(opts.pose_score_spacing))
-        scores = [_pose_score(full, mesh.kdtree, pr, pt, mesh.vertex_normals, opts.pose_score, s)
-                  for pr, pt, _, s, _ in poses]
+        scores = [_pose_score(full, mesh.kdtree, pr, pt, mesh.vertex_normals, opts.pose_score, s,
+                              int(opts.pose_score_iters)) for pr, pt, _, s, _ in poses]
         if opts.pose_height_weight > 0 and opts.poses_per_tip > 0:
             # a nose tip stands out of its ball: a pose seeded at a higher protrusion is likelier
             scores = [sc - float(opts.pose_height_weight) * p[4] for sc, p in zip(scores, poses)]
@@ -163,13 +165,13 @@ def _distinct_poses(model, poses, order, n: int, distance: float) -> list:
     return out
 
 
-def _fit_poses_sized(mesh, model, starts, scales, n_best, fine_iters=40, coarse_scan=None):
+def _fit_poses_sized(mesh, model, starts, scales, n_best, fine_iters=40, coarse_scan=None, coarse_iters=8):
     """:func:`.pose.fit_poses` of the template's upper face from ``starts`` at the template sizes
     ``scales`` (one per start), ``fine_iters`` refinement iterations, the coarse stage on
     ``coarse_scan`` (a subsampled scan's tree and normals; None: the scan): [(R, t, rms, size), ...]."""
     if all(s == 1.0 for s in scales):  # the rigid search (bitwise as before)
         return [(pr, pt, rms, 1.0) for pr, pt, rms in
                 fit_poses(model.icp_points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
-                          fine_iters=fine_iters, coarse_scan=coarse_scan)]
+                          fine_iters=fine_iters, coarse_scan=coarse_scan, coarse_iters=coarse_iters)]
     return fit_poses(model.icp_points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
-                     scales=np.array(scales), fine_iters=fine_iters, coarse_scan=coarse_scan)
+                     scales=np.array(scales), fine_iters=fine_iters, coarse_scan=coarse_scan, coarse_iters=coarse_iters)
