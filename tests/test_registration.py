@@ -216,6 +216,52 @@ def test_correspond_tries_the_start_searchs_other_poses_after_an_implausible_fit
     assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
 
 
+@pytest.mark.parametrize("identity_cost", [0.003, 0.0])
+def test_refits_are_judged_by_fit_rms_and_identity_plausibility(monkeypatch, identity_cost):
+    """Of the refits, one that matches the scan 0.1 mm closer with an implausible identity
+    (‖β‖² = 300 of 40 modes) loses to the right one when ‖β‖² costs 0.003 mm a unit (default),
+    and wins when it costs nothing (the lowest RMS alone, the previous rule)."""
+    import facecorr.landmarks as lm_pkg
+    import facecorr.registration as reg_pkg
+    from facecorr.landmarks.predict import LandmarkResult
+    from facecorr.pipeline import CorrespondOptions, correspond
+    from facecorr.pipeline.correspond import refit_score
+
+    tpl = load_template()
+    mesh, lms, gt, _ = make_scan(3)
+    alt = (np.eye(3), np.zeros(3), 1.0, 1.0)
+
+    def fake_predict(mesh_, model=None, options=None, start_pose=None):
+        pos = lms if start_pose is not None else _turned_about_the_nose(lms, 35.0)
+        shift = mesh_.vertices[0] - mesh.vertices[0]
+        pos = {k: np.asarray(v) + shift for k, v in pos.items()}
+        return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[],
+                              timings_s={"total": 0.0}, debug={"alternative_poses": [alt]})
+
+    real, fits = reg_pkg.register, []
+
+    def register(*a, **k):  # the wider search's fit (third) claims a closer match, implausible face
+        r = real(*a, **k)
+        if len(fits) == 2:
+            r.details["fit_rms_mm"] = fits[1].details["fit_rms_mm"] - 0.1
+            r.details["identity_weights"] = [np.sqrt(300.0 / 40)] * 40
+        fits.append(r)
+        return r
+
+    monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
+    monkeypatch.setattr(reg_pkg, "register", register)
+    res = correspond(mesh, template=tpl, options=CorrespondOptions(refit_identity_cost=identity_cost))
+    assert len(fits) == 3  # first, the alternative pose, the wider search
+    assert refit_score(fits[2], 0.0) < refit_score(fits[1], 0.0)
+    err = np.linalg.norm(res.vertices - gt, axis=1).mean()
+    if identity_cost > 0:
+        assert refit_score(fits[1], identity_cost) < refit_score(fits[2], identity_cost)
+        assert err < 2.5
+    else:
+        assert np.allclose(res.vertices, fits[2].vertices + (res.vertices - fits[2].vertices).mean(0))
+        assert err > 2.5
+
+
 def test_lower_face_chamfer_is_the_full_query_value():
     """The jaw-start choice queries only the scan vertices in the lower face's box grown by 15 mm:
     the value is exactly that of querying every scan vertex (the previous code, here as reference)."""

@@ -215,13 +215,20 @@ class CorrespondOptions:
     "Where the defaults come from"). ``refit_on_implausible``: a fit the model cannot explain
     (:meth:`RegistrationResult.implausible`) is redone once from landmarks predicted with the wider
     start search (:meth:`PredictOptions.wider`) and from the start search's next best distinct
-    poses (``PredictOptions.n_alternative_poses``), and the best-explained fit kept (lowest fit RMS).
+    poses (``PredictOptions.n_alternative_poses``), and the best-explained fit kept: the lowest fit
+    RMS (mm) plus ``refit_identity_cost`` mm per unit of the identity weights' squared norm ‖β‖²
+    (:func:`refit_score`).
     """
 
     predict: PredictOptions = field(default_factory=PredictOptions)
     register: RegisterOptions = field(default_factory=RegisterOptions)
     predicted_landmark_weight: float = 0.0
     refit_on_implausible: bool = True
+    # Of the refits, a face the identity model finds implausible (‖β‖² of 200-550 for 40 modes,
+    # where faces like the training faces have ~40) pays this many mm of fit RMS per unit of ‖β‖²:
+    # on raw crops and unusual faces a fit on the wrong part can match the scan a little closer
+    # (BENCHMARKS.md, "Out of model, fourth pass"; 0: the lowest RMS alone).
+    refit_identity_cost: float = 0.003
     # Given landmarks farther than this from every scan vertex (mm) are refused: they are in
     # another frame or unit, and the registration would land beside the scan.
     max_landmark_distance: float = 10.0
@@ -302,7 +309,7 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
             pred2 = predict_landmarks(work, model=model, **({"options": opts.predict} | how))
             pos2 = {k: np.asarray(v, float) for k, v in pred2.positions.items()}
             reg2 = register(work, pos2, template=template, options=reg_opts)
-            if reg2.details.get("fit_rms_mm", np.inf) < reg.details.get("fit_rms_mm", np.inf):
+            if refit_score(reg2, opts.refit_identity_cost) < refit_score(reg, opts.refit_identity_cost):
                 reg, positions, confidence = reg2, pos2, dict(pred2.confidence)
                 flags = list(pred2.flags)  # the first prediction's doubts no longer apply
                 doubts = reg.implausible()
@@ -374,6 +381,15 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         neutral_vertices=neutral,
         neutral_removed=removed,
     )
+
+
+def refit_score(reg, identity_cost: float) -> float:
+    """How badly the model explains a registration (lower is better), to choose among refits: its
+    expression + identity fit RMS (mm, inf without one) plus ``identity_cost`` (mm) times ‖β‖², the
+    squared norm of its identity weights (χ²-distributed for faces like the training faces)."""
+    rms = reg.details.get("fit_rms_mm", np.inf)
+    beta = np.asarray(reg.details.get("identity_weights", []), dtype=np.float64)
+    return float(rms) + float(identity_cost) * float(beta @ beta)
 
 
 def transfer_colours(scan: Mesh, vertices: np.ndarray, uncovered: np.ndarray) -> np.ndarray:
