@@ -9,7 +9,8 @@ as ``source_landmarks`` / ``target_positions``. Prints per-region errors at the 
 (paper Table 3 regions), dense correspondence error, MHD and seconds per scan side by side with
 the ratio, in one run.
 
-    python benches/compare_registration.py [--db DIR] [--n 20] [--landmarks gt|predicted]
+    python benches/compare_registration.py [--db DIR] [--split test] [--every 1] [--n 20]
+                                           [--landmarks gt|predicted]
 
 Without --db a database is synthesised once into out/bench_registration_db (bu3dfe preset,
 6 subjects, the paper's evaluation subset; its test split has 21 scans).
@@ -69,7 +70,10 @@ def measure(template, verts, gt, mesh):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--db", help="synthetic database (default: synthesise out/bench_registration_db)")
-    ap.add_argument("--n", type=int, default=20, help="number of test scans (default 20)")
+    ap.add_argument("--split", default="test", help="the database's split to take scans from (default test;"
+                    " an out-of-model database: ood_test or ood_holdout)")
+    ap.add_argument("--every", type=int, default=1, help="take every k-th scan of the split (default 1)")
+    ap.add_argument("--n", type=int, default=20, help="number of scans (default 20)")
     ap.add_argument("--landmarks", choices=("gt", "predicted"), default="gt")
     ap.add_argument("--out", default="out/bench_registration.json")
     ap.add_argument("--skip-peer", action="store_true", help="only run facecorr")
@@ -84,10 +88,12 @@ def main(argv=None) -> int:
     from facecorr.template import load_template
 
     db = Path(args.db) if args.db else synth_db(Path("out/bench_registration_db"))
-    recs = [r for r in load_index(db) if r["split"] == "test"][: args.n]
+    recs = [r for r in load_index(db) if r["split"] == args.split][:: max(args.every, 1)][: args.n]
+    if not recs:
+        sys.exit(f"no scans of split {args.split!r} in {db}")
     template = load_template()
     rows = []
-    print(f"{len(recs)} test scans from {db}, landmarks: {args.landmarks}, FACECORR_THREADS={os.environ.get('FACECORR_THREADS', '2')}")
+    print(f"{len(recs)} {args.split} scans from {db}, landmarks: {args.landmarks}, FACECORR_THREADS={os.environ.get('FACECORR_THREADS', '2')}")
     for i, rec in enumerate(recs):
         mesh = load_mesh(rec["scan"], units="mm")
         gt = evaluate.load_ground_truth(rec["gt"])
