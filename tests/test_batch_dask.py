@@ -225,7 +225,10 @@ def test_ctrl_c_on_a_local_cluster_leaves_only_complete_results(scans, reference
     out = tmp_path / "out"
     p = subprocess.Popen([sys.executable, "-m", "facecorr.cli", "batch", str(src), str(out), "--scheduler", "local",
                           "--workers", "2", "--landmark-set", str(points)],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                         # Ctrl-C's default action even when the suite runs as a background job
+                         # (started with SIGINT ignored, which Python would keep)
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     kids, t0 = set(), time.monotonic()
     while not (out.exists() and [j for j in out.rglob("*.json") if j.name != "failures.json"]):
         kids.update(int(x) for x in subprocess.run(["ps", "--ppid", str(p.pid), "-o", "pid="], capture_output=True,

@@ -49,9 +49,16 @@ def _alive(pids):
     return [p for p in pids if (s := _stat(p)) is not None and s[0] != "Z"]
 
 
+def _default_sigint():
+    """In the child: Ctrl-C's default action. A shell without job control starts background jobs
+    with SIGINT ignored, and Python keeps an inherited SIG_IGN: the batch would never see the signal
+    these tests send when the suite itself runs in the background."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(src, out):
     return subprocess.Popen([sys.executable, "-m", "facecorr.cli", "batch", str(src), str(out), "--workers", "2"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
 
 
 def _check_results(out, expect_all=False):
