@@ -170,3 +170,29 @@ def test_coarse_scan_ranks_the_starts_and_the_scan_refines_them():
     # no refinement (fine_iters=0): the coarse poses with their whole-scan residual
     (r0, _, rms0), *_ = fit_poses(pts, tree, starts, n_best=2, normals=normals, fine_iters=0)
     assert rms0 >= rms - 1e-9
+
+
+def test_pose_points_keep_the_upper_face_near_the_nose_tip():
+    """``pose_points``: radius 0 is every ICP point; a radius keeps exactly those within it of
+    Pa's nose tip; a radius holding fewer than 10 points falls back to all of them."""
+    from facecorr.landmarks.model import load_model
+    from facecorr.landmarks.start import pose_points
+    from facecorr.names import NOSE_TIP
+
+    model = load_model(None)
+    allp = model.icp_points
+    assert pose_points(model, 0.0) is allp
+    d = np.linalg.norm(allp - model.graph_points[NOSE_TIP], axis=1)
+    near = pose_points(model, 55.0)
+    assert len(near) == int((d < 55.0).sum()) and 10 <= len(near) < len(allp)
+    assert np.linalg.norm(near - model.graph_points[NOSE_TIP], axis=1).max() < 55.0
+    assert pose_points(model, 0.5) is allp
+
+
+def test_wider_search_takes_its_own_pose_points_radius():
+    """By default the first search fits the points near the nose and the wider one all of them
+    (another reading of an unusual face); ``retry_pose_points_radius=None`` keeps the first's."""
+    from facecorr.landmarks.predict import PredictOptions
+
+    assert PredictOptions().pose_points_radius > 0 and PredictOptions().wider().pose_points_radius == 0.0
+    assert PredictOptions(pose_points_radius=40.0, retry_pose_points_radius=None).wider().pose_points_radius == 40.0

@@ -48,7 +48,10 @@ def patch_localise(mesh, model, pose, opts):
     times ``min(1, (2 mm / patch rms)^2)`` (a patch that does not fit the surface is doubtful).
     """
     r, t, *rest = pose
-    r, scale, t, _ = similarity_icp(model.icp_points, mesh.kdtree, r, t, scale=float(rest[0]) if rest else 1.0)
+    from .start import pose_points
+
+    r, scale, t, _ = similarity_icp(pose_points(model, float(opts.similarity_points_radius)), mesh.kdtree, r, t,
+                                    scale=float(rest[0]) if rest else 1.0)
     flags = [] if 0.75 < scale < 1.33 else [f"implausible_face_scale:{scale:.2f}x template"]
     scale = float(np.clip(scale, 0.75, 1.33))
     patches = _template_patches(model, float(opts.patch_radius))

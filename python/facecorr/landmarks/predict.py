@@ -96,6 +96,15 @@ class PredictOptions:
     pose_coarse_iters: int = 8        # ICP iterations of the coarse ranking of the sweep starts
     pose_score_iters: int = 10        # ICP iterations of the whole-template score from each pose
     pose_score_spacing: float = 4.0   # the whole-template score's points: the template subsampled at this spacing, mm
+    # >0: the pose search fits only the upper-face points within this many mm of the nose tip
+    # (start.pose_points: 380 of 788); 0: all of them. A forehead sloped unlike the template's, or
+    # hair over it, tilted the whole upper face's fit by 20 mm on some faces; the nose, eyes and
+    # cheeks vary less. The wider search (``retry_pose_points_radius``) fits all of them: another
+    # reading when the first fails. In model equal regions, 12 % less time; out of model fewer
+    # gross failures (BENCHMARKS.md, "Out of model, fifth pass"). ``similarity_points_radius``:
+    # the same for the patch localisation's similarity refinement (0: all; 55 measured worse).
+    pose_points_radius: float = 55.0
+    similarity_points_radius: float = 0.0
     coarse_scan_spacing: float = 0.0  # >0: the coarse pose ranking on the scan subsampled at this spacing, mm (0: all)
     # The next best poses that read the scan differently (posed landmark graph ≥ this many mm
     # apart, mean of the 8), kept as debug["alternative_poses"] [(R, t, icp rms, size)]: the
@@ -122,6 +131,7 @@ class PredictOptions:
     retry_n_tips: int = 3
     retry_n_tip_candidates: int = 10
     retry_sweep_angles: int = 16
+    retry_pose_points_radius: float | None = 0.0  # the wider search's; None: as ``pose_points_radius``
 
     def __post_init__(self):
         if self.start_search not in ("protrusion", "paper"):
@@ -135,8 +145,10 @@ class PredictOptions:
 
     def wider(self) -> "PredictOptions":
         """These options with the wider start search of the ``retry_*`` fields."""
+        radius = self.pose_points_radius if self.retry_pose_points_radius is None else self.retry_pose_points_radius
         return replace(self, n_starts=self.retry_n_starts, sweep_tips=self.retry_sweep_tips, n_tips=self.retry_n_tips,
-                       n_tip_candidates=self.retry_n_tip_candidates, sweep_angles=self.retry_sweep_angles)
+                       n_tip_candidates=self.retry_n_tip_candidates, sweep_angles=self.retry_sweep_angles,
+                       pose_points_radius=float(radius))
 
 
 def _failed(result) -> bool:

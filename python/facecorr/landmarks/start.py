@@ -1,8 +1,8 @@
 """The default start: a rigid pose of the template from the most protruding points.
 
 The ``n_tip_candidates`` most protruding points (:mod:`.protrusion`) each seed a sweep of rigid
-starts about their plane normal; a trimmed point-to-plane ICP of the template's upper face
-(:mod:`.pose`) refines each candidate's best (a face and its upside-down image), and the whole
+starts about their plane normal; a trimmed point-to-plane ICP of the template's upper face near
+the nose (:func:`pose_points`, :mod:`.pose`) refines each candidate's best (a face and its upside-down image), and the whole
 template's residual, less a share of the candidate's protrusion, picks among them: on raw scans a
 shoulder or a hairy scalp can fit the upper face better than an unusual face (BENCHMARKS.md,
 "Out of model, second pass").
@@ -41,6 +41,18 @@ def _template_surface_points(model, spacing: float = 4.0) -> np.ndarray:
         tpl = packaged_template(model)
         _PATCH_CACHE[key] = tpl.vertices[voxel_subsample(tpl.vertices, np.arange(tpl.n_vertices), spacing)]
     return _PATCH_CACHE[key]
+
+
+def pose_points(model, radius: float = 0.0) -> np.ndarray:
+    """(P, 3) the model's upper-face ICP points (mm) within ``radius`` mm of Pa's nose tip (0: all).
+
+    Near the nose the face is rigid and its shape varies least between people; a forehead
+    sloped unlike the template's (or hair over it) tilts a fit of the whole upper face."""
+    if radius <= 0:
+        return model.icp_points
+    pts = model.icp_points
+    near = pts[np.linalg.norm(pts - model.graph_points[NOSE_TIP], axis=1) < radius]
+    return near if len(near) >= 10 else pts
 
 
 def _template_tip_plane_normal(model, radius: float) -> np.ndarray:
@@ -120,11 +132,12 @@ def protrusion_pose(mesh, model, opts, timer, name):
             # fit a shoulder or a hairy scalp better, in the coarse ranking, than an unusual face
             poses = [p + (h,) for h, st, sc in groups
                      for p in _fit_poses_sized(mesh, model, st, sc, int(opts.poses_per_tip), fine, coarse,
-                                               int(opts.pose_coarse_iters))]
+                                               int(opts.pose_coarse_iters), opts.pose_points_radius)]
         else:
             poses = [p + (np.nan,) for p in _fit_poses_sized(mesh, model, [x for g in groups for x in g[1]],
                                                              [x for g in groups for x in g[2]], int(opts.n_poses),
-                                                             fine, coarse, int(opts.pose_coarse_iters))]
+                                                             fine, coarse, int(opts.pose_coarse_iters),
+                                                             opts.pose_points_radius)]
         # A face and its upside-down image can fit the upper face almost equally well (forehead
         # on the chin); the whole template (mouth and chin too) tells them apart: measured on
         # the 2 upside-down results of the 350 test scans, the right pose had the lowest
@@ -142,7 +155,7 @@ def protrusion_pose(mesh, model, opts, timer, name):
         for i in chosen:
             r, t, rms, s, _ = poses[i]
             if not fine:
-                r, t, rms, _ = trimmed_icp(s * model.icp_points, mesh.kdtree, r, t, iters=40,
+                r, t, rms, _ = trimmed_icp(s * pose_points(model, opts.pose_points_radius), mesh.kdtree, r, t, iters=40,
                                            normals=mesh.vertex_normals)
             out.append((r, t, rms, s))
     (r, t, rms, s), alternatives = out[0], out[1:]
@@ -165,13 +178,16 @@ def _distinct_poses(model, poses, order, n: int, distance: float) -> list:
     return out
 
 
-def _fit_poses_sized(mesh, model, starts, scales, n_best, fine_iters=40, coarse_scan=None, coarse_iters=8):
-    """:func:`.pose.fit_poses` of the template's upper face from ``starts`` at the template sizes
-    ``scales`` (one per start), ``fine_iters`` refinement iterations, the coarse stage on
-    ``coarse_scan`` (a subsampled scan's tree and normals; None: the scan): [(R, t, rms, size), ...]."""
+def _fit_poses_sized(mesh, model, starts, scales, n_best, fine_iters=40, coarse_scan=None, coarse_iters=8,
+                     points_radius=0.0):
+    """:func:`.pose.fit_poses` of the template's upper face (:func:`pose_points` within
+    ``points_radius`` mm of the nose tip) from ``starts`` at the template sizes ``scales`` (one per
+    start), ``fine_iters`` refinement iterations, the coarse stage on ``coarse_scan`` (a subsampled
+    scan's tree and normals; None: the scan): [(R, t, rms, size), ...]."""
+    points = pose_points(model, points_radius)
     if all(s == 1.0 for s in scales):  # the rigid search (bitwise as before)
         return [(pr, pt, rms, 1.0) for pr, pt, rms in
-                fit_poses(model.icp_points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
+                fit_poses(points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
                           fine_iters=fine_iters, coarse_scan=coarse_scan, coarse_iters=coarse_iters)]
-    return fit_poses(model.icp_points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
+    return fit_poses(points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
                      scales=np.array(scales), fine_iters=fine_iters, coarse_scan=coarse_scan, coarse_iters=coarse_iters)
