@@ -136,3 +136,47 @@ def test_kdtree_is_built_once_and_correct(monkeypatch):
     assert built == [len(V)]  # one tree for every stage that asks
     d, i = m.kdtree.query(V[[5, 7]] + 1e-6)
     np.testing.assert_array_equal(i, [5, 7])
+
+
+def _grid_with_hole(n=12, hole=(4, 7)):
+    """(V, F) of an n x n vertex grid (1 mm) without the cells of the square ``hole`` (cell range)."""
+    V = np.array([[i, j, 0.0] for j in range(n) for i in range(n)])
+    F = []
+    for j in range(n - 1):
+        for i in range(n - 1):
+            if hole[0] <= i < hole[1] and hole[0] <= j < hole[1]:
+                continue
+            a, b, c, d = j * n + i, j * n + i + 1, (j + 1) * n + i + 1, (j + 1) * n + i
+            F += [[a, b, c], [a, c, d]]
+    return V, np.array(F)
+
+
+def test_outer_boundary_is_the_border_not_the_hole():
+    n = 12
+    V, F = _grid_with_hole(n)
+    m = Mesh(V, F)
+    ij = V[:, :2].astype(int)
+    border = np.flatnonzero((ij == 0).any(axis=1) | (ij == n - 1).any(axis=1))
+    np.testing.assert_array_equal(m.outer_boundary, border)
+    # the hole's rim is a boundary too, but a shorter curve
+    rim = np.setdiff1d(m.boundary_vertices, border)
+    assert len(rim) == 12 and not np.isin(rim, m.outer_boundary).any()
+
+
+def test_outer_boundary_of_a_closed_mesh_is_empty():
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    assert Mesh(V, F).outer_boundary.shape == (0,)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(4, 14), st.integers(1, 3), st.integers(1, 4))
+def test_outer_boundary_property_grid(n, lo, size):
+    # any grid with an interior hole: the outer boundary is the grid's perimeter
+    hi = min(lo + size, n - 2)
+    if hi <= lo:
+        return
+    V, F = _grid_with_hole(n, (lo, hi))
+    ij = V[:, :2].astype(int)
+    border = np.flatnonzero((ij == 0).any(axis=1) | (ij == n - 1).any(axis=1))
+    np.testing.assert_array_equal(Mesh(V, F).outer_boundary, border)

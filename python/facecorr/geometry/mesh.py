@@ -173,6 +173,27 @@ class Mesh:
         return _core.mesh_boundary_vertices(self.faces, self.n_vertices)
 
     @cached_property
+    def outer_boundary(self) -> np.ndarray:
+        """(B,) int64 sorted ids of the vertices of the longest boundary curve: a scan's outer
+        border (holes, nostrils and eye openings are shorter curves); empty for a closed mesh.
+        Boundary edges are the edges used by one triangle; a curve is a connected set of them."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        f = self.faces
+        e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        key, count = np.unique(e[:, 0] * np.int64(self.n_vertices) + e[:, 1], return_counts=True)
+        key = key[count == 1]
+        if len(key) == 0:
+            return np.zeros(0, dtype=np.int64)
+        a, b = key // self.n_vertices, key % self.n_vertices
+        graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(self.n_vertices, self.n_vertices))
+        _, label = connected_components(graph, directed=False)
+        length = np.bincount(label[a], weights=np.linalg.norm(self.vertices[a] - self.vertices[b], axis=1))
+        longest = int(np.argmax(length))
+        return np.unique(np.concatenate([a, b])[np.concatenate([label[a], label[b]]) == longest]).astype(np.int64)
+
+    @cached_property
     def is_boundary(self) -> np.ndarray:
         """(N,) bool, True on boundary vertices."""
         mask = np.zeros(self.n_vertices, dtype=bool)

@@ -119,15 +119,24 @@ class PredictOptions:
     candidate_spacing: float = 1.5    # finest subsampling of the coarse BP search regions
     refine_spacing: float = 1.0       # candidates of the fine BP pass
     n_starts: int = 3                 # nose-tip (and subnasal) start umbilics
+    # The paper start skips umbilics nearer the scan's outer border than the largest FP radius
+    # (their descriptors' disks are cut off there; paper/search.py); False: every umbilic.
+    fp_border_check: bool = True
+    # The paper start's choice among its ICP poses: "template" (the whole template's residual, as
+    # the default start: tells a face from its upside-down image) or "fp" (the posed landmarks'
+    # FP likelihood, the earlier choice; flipped 11 of 350 test scans).
+    paper_pose_score: str = "template"
     n_tips: int = 2                   # nose-tip choices per start
-    sweep_tips: int = 2               # distinct tips with a rotation sweep about their normal
+    # paper start: distinct nose tips (of the nose hypotheses, in order) with a rotation sweep about
+    # their normal (2 before 2026-12-06: the right tip was often the 3rd-8th; ~0.1 s per tip)
+    sweep_tips: int = 12
     sweep_angles: int = 12            # rotations per sweep
     confidence_radius: float = 4.0
     low_confidence: float = 0.3       # flag below this
     bp_iterations: int = 60
     retry: bool = True                # redo a self-flagged failure with the wider search below
     retry_n_starts: int = 8
-    retry_sweep_tips: int = 4
+    retry_sweep_tips: int = 24
     retry_n_tips: int = 3
     retry_n_tip_candidates: int = 10
     retry_sweep_angles: int = 16
@@ -136,6 +145,8 @@ class PredictOptions:
     def __post_init__(self):
         if self.start_search not in ("protrusion", "paper"):
             raise ValueError(f"start_search must be 'protrusion' or 'paper', got {self.start_search!r}")
+        if self.paper_pose_score not in ("template", "fp"):
+            raise ValueError(f"paper_pose_score must be 'template' or 'fp', got {self.paper_pose_score!r}")
         if self.pose_score not in ("trimmed", "truncated"):
             raise ValueError(f"pose_score must be 'trimmed' or 'truncated', got {self.pose_score!r}")
         if not self.pose_scales or any(not 0.5 <= float(s) <= 2.0 for s in self.pose_scales):
