@@ -222,8 +222,8 @@ def paper_pose(mesh, feat, model, opts, timer, name, flags):
         # disks are cut off, which shrinks their area as a protruding tip's does: on the scans
         # where the paper's start failed, every umbilic FPPCA ranked "nose tip" lay ~8 mm from
         # the crop border, ~100 mm from the nose (BENCHMARKS.md, "The paper's method at the paper's
-        # numbers"). Umbilics
-        # nearer the border than the largest radius have no complete descriptor: no starts.
+        # numbers"). Umbilics nearer the border than the largest radius have no complete
+        # descriptor: they are no starts.
         border = mesh.outer_boundary
         if len(border):
             from ...geometry.spatial import KDTree
