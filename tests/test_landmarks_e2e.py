@@ -242,8 +242,10 @@ def test_locate_landmarks_refined_by_the_registration(trained, tmp_path):
             errs["fast"].append(np.linalg.norm(fast.positions[n] - np.asarray(gt[n])))
             errs["refined"].append(np.linalg.norm(ref.positions[n] - np.asarray(gt[n])))
         if k == 0:  # the CLI: refined by default, --fast the prediction
-            for flag, want in (([], ref), (["--fast"], fast)):
-                out = tmp_path / f"lm{len(flag)}.json"
+            paper = predict_landmarks(mesh, model=model, start_search="paper", localise="bp")
+            for k_flag, (flag, want) in enumerate((([], ref), (["--fast"], fast), (["--method", "fast"], fast),
+                                                   (["--method", "paper"], paper))):
+                out = tmp_path / f"lm{k_flag}.json"
                 assert main(["landmarks", r["scan"], "--json", str(out), "--model", str(path), *flag]) == 0
                 data = json.loads(out.read_text())["landmarks"]
                 for n in LANDMARK_NAMES:
