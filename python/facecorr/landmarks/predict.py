@@ -128,7 +128,8 @@ class PredictOptions:
     paper_pose_score: str = "template"
     n_tips: int = 2                   # nose-tip choices per start
     # paper start: distinct nose tips (of the nose hypotheses, in order) with a rotation sweep about
-    # their normal (2 before 2026-12-06: the right tip was often the 3rd-8th; ~0.1 s per tip)
+    # their normal (2 before 2026-12-06: the right tip was often the 3rd-8th; with the per-tip
+    # poses the pose stage went from 0.3 to 1.1 s a scan, BENCHMARKS.md)
     sweep_tips: int = 12
     sweep_angles: int = 12            # rotations per sweep
     confidence_radius: float = 4.0
