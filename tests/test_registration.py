@@ -189,35 +189,6 @@ def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch, f
     assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
 
 
-@pytest.mark.parametrize("threshold", [0.0, 0.1])
-def test_correspond_refits_a_plausible_fit_above_the_score_threshold(monkeypatch, threshold):
-    """``refit_above_score``: a plausible fit scoring above it is refitted too (flagged as a poor
-    fit); 0 (the default) refits implausible fits only."""
-    import facecorr.landmarks as lm_pkg
-    from facecorr.landmarks.predict import LandmarkResult, PredictOptions
-    from facecorr.pipeline import CorrespondOptions, correspond
-
-    tpl = load_template()
-    mesh, lms, gt, _ = make_scan(3)
-    calls = []
-
-    def fake_predict(mesh_, model=None, options=None, **kw):
-        calls.append(options)
-        shift = mesh_.vertices[0] - mesh.vertices[0]
-        return LandmarkResult(positions={k: np.asarray(v) + shift for k, v in lms.items()},
-                              confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[], timings_s={"total": 0.0})
-
-    monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
-    res = correspond(mesh, template=tpl, options=CorrespondOptions(refit_above_score=threshold))
-    assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
-    if threshold == 0.0:  # a good fit (score ~0.7 mm): no refit
-        assert calls == [PredictOptions()] and not any(f.startswith("refit") for f in res.flags)
-    else:  # every fit scores above 0.1 mm: refitted with the wider search, the same landmarks kept
-        assert calls == [PredictOptions(), replace(PredictOptions().wider(), retry=False)]
-        assert "refit_wider_search_after_poor_fit" in res.flags
-    assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
-
-
 def test_correspond_tries_the_start_searchs_other_poses_after_an_implausible_fit(monkeypatch):
     """First prediction wrong (turned 35 degrees) and so is the wider search; the start search's
     alternative pose gives the right landmarks: its fit explains the scan best and is kept."""

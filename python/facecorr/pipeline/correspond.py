@@ -229,10 +229,6 @@ class CorrespondOptions:
     # on raw crops and unusual faces a fit on the wrong part can match the scan a little closer
     # (BENCHMARKS.md, "Out of model, fourth pass"; 0: the lowest RMS alone).
     refit_identity_cost: float = 0.003
-    # > 0: a plausible fit whose refit score is above this (mm) is refitted too (the same tries,
-    # the lowest score kept): an unusual face fitted from a wrong pose can pass the checks with a
-    # score a right pose beats (0: only implausible fits are refitted).
-    refit_above_score: float = 0.0
     # Given landmarks farther than this from every scan vertex (mm) are refused: they are in
     # another frame or unit, and the registration would land beside the scan.
     max_landmark_distance: float = 10.0
@@ -298,14 +294,12 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         reg_opts = replace(reg_opts, shape=replace(reg_opts.shape, w_landmark=opts.predicted_landmark_weight))
     reg = register(work, positions, template=template, options=reg_opts)
     doubts = reg.implausible()
-    poor = opts.refit_above_score > 0 and refit_score(reg, opts.refit_identity_cost) > opts.refit_above_score
-    if (doubts or poor) and landmarks is None and opts.refit_on_implausible:
+    if doubts and landmarks is None and opts.refit_on_implausible:
         # Landmarks in a wrong pose show as a fit the model cannot explain: predict again with
         # the wider start search and keep the better-explained fit. Also when the prediction
         # already retried that search and kept its first answer (both failed its own checks):
         # the registration's residual judges the two better than the landmark checks.
         t1 = time.perf_counter()
-        doubts_first = bool(doubts)
         # The start search's other readings of the scan go first: on raw crops and unusual faces
         # a shoulder or a hairy scalp can outscore the face in the rigid ranking, while the
         # deformable fit from the face explains the scan far better (BENCHMARKS.md, issue 14).
@@ -320,7 +314,7 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
                 flags = list(pred2.flags)  # the first prediction's doubts no longer apply
                 doubts = reg.implausible()
         timings["refit"] = time.perf_counter() - t1
-        flags.append("refit_wider_search_after_implausible_fit" if doubts_first else "refit_wider_search_after_poor_fit")
+        flags.append("refit_wider_search_after_implausible_fit")
     if landmarks is None and not doubts:
         for _ in range(int(opts.refine_passes)):
             t1 = time.perf_counter()
