@@ -196,3 +196,90 @@ def test_wider_search_takes_its_own_pose_points_radius():
 
     assert PredictOptions().pose_points_radius > 0 and PredictOptions().wider().pose_points_radius == 0.0
     assert PredictOptions(pose_points_radius=40.0, retry_pose_points_radius=None).wider().pose_points_radius == 40.0
+
+
+def _scene_mesh(seed: int):
+    """The bumpy face turned by a random rotation and moved, as a Mesh (for ``Mesh.surface``)."""
+    from facecorr.geometry.mesh import Mesh
+
+    n = 90
+    rot = Rotation.random(random_state=seed).as_matrix()
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    return rot, Mesh(_bumpy_face(n) @ rot.T + np.array([5.0, -20.0, 40.0]), faces)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("keep", [0.8, 1.0])
+def test_surface_icp_agrees_with_the_numpy_trimmed_icp(seed, keep):
+    """The Rust ICP (rust/src/icp.rs) against its numpy reference, from sweep starts (near and far
+    from the answer), on the same scan points and normals: the same poses to 1e-6 (rotation) /
+    1e-5 mm, the same RMS and distances. Tolerances: the two differ by rounding only (Cholesky vs
+    lstsq for the 6x6 step, selection vs sort of the trimmed set), which the few starts whose
+    trimmed set changes near a tie could amplify, so most (not all) starts must agree exactly
+    and every start's RMS within 1 %."""
+    from facecorr.landmarks.pose import surface_icp
+
+    rot, mesh = _scene_mesh(seed)
+    tip = np.array([0.0, 0.0, 25.0])
+    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + [5.0, -20.0, 40.0], rot[:, 2], 6)
+    pts = _bumpy_face()[::7]
+    fast = surface_icp(pts, mesh.surface, starts, iters=30, keep=keep)
+    close = 0
+    for (r0, t0), (r, t, rms, d) in zip(starts, fast):
+        rr, tr, rmsr, dr = trimmed_icp(pts, mesh.kdtree, r0, t0, iters=30, keep=keep, normals=mesh.vertex_normals)
+        assert rms == pytest.approx(rmsr, rel=1e-2, abs=1e-6)
+        if np.abs(r - rr).max() < 1e-6 and np.abs(t - tr).max() < 1e-5:
+            close += 1
+            np.testing.assert_allclose(d, dr, atol=1e-5)
+            assert rms == pytest.approx(rmsr, rel=1e-8, abs=1e-9)
+    assert close >= len(starts) - 1, close
+    # the best start finds the true rotation
+    best = min(fast, key=lambda f: f[2])
+    np.testing.assert_allclose(best[0], rot, atol=0.02)
+
+
+def test_surface_icp_edge_cases():
+    from facecorr import _core
+    from facecorr.landmarks.pose import surface_icp
+
+    rot, mesh = _scene_mesh(0)
+    pts = _bumpy_face()[::11]
+    assert surface_icp(pts, mesh.surface, []) == []
+    # 0 iterations: the start's own residual, as the numpy ICP reports it
+    (r, t, rms, d), = surface_icp(pts, mesh.surface, [(rot, np.array([5.0, -20.0, 40.0]))], iters=0)
+    rr, tr, rmsr, dr = trimmed_icp(pts, mesh.kdtree, rot, np.array([5.0, -20.0, 40.0]), iters=0,
+                                   normals=mesh.vertex_normals)
+    np.testing.assert_array_equal(r, rr)
+    assert rms == pytest.approx(rmsr, rel=1e-12)
+    np.testing.assert_allclose(d, dr, rtol=1e-12)
+    # fewer than 6 points: all are kept, as in numpy
+    (_, _, rms3, d3), = surface_icp(pts[:3], mesh.surface, [(rot, np.array([5.0, -20.0, 40.0]))], iters=0)
+    assert len(d3) == 3 and rms3 == pytest.approx(np.sqrt(np.mean(d3 ** 2)), rel=1e-12)
+    with pytest.raises(ValueError, match="rotations must have shape"):
+        _core.trimmed_icp(mesh.surface, pts, np.zeros((2, 3, 3)), np.zeros((1, 3)), 5, 0.8, 1e-5)
+    with pytest.raises(ValueError, match="keep"):
+        surface_icp(pts, mesh.surface, [(rot, np.zeros(3))], keep=0.0)
+    with pytest.raises(ValueError, match="NaN"):
+        surface_icp(np.full((4, 3), np.nan), mesh.surface, [(rot, np.zeros(3))])
+
+
+def test_surface_batch_icp_agrees_with_batch_icp():
+    """The coarse stage in Rust (``_surface_batch_icp``, fixed iterations, starts at their own
+    sizes) against the numpy ``batch_icp`` on the same scan: the same ranking of the starts and
+    poses to 1e-5 (rounding only; see the test above)."""
+    from facecorr.landmarks.pose import _surface_batch_icp, batch_icp
+
+    rot, mesh = _scene_mesh(2)
+    tip = np.array([0.0, 0.0, 25.0])
+    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + [5.0, -20.0, 40.0], rot[:, 2], 8)
+    starts = starts + starts
+    scales = np.array([1.0] * 8 + [1.1] * 8)
+    pts = _bumpy_face()[::7]
+    a = batch_icp(pts, mesh.kdtree, starts, iters=8, normals=mesh.vertex_normals, scales=scales)
+    b = _surface_batch_icp(pts, mesh.surface, starts, 8, 0.8, scales)
+    np.testing.assert_allclose(b[0], a[0], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(b[1], a[1], atol=1e-6)
+    np.testing.assert_allclose(b[2], a[2], atol=1e-5)
+    assert np.argmin(a[0]) == np.argmin(b[0])

@@ -16,6 +16,7 @@ pub mod curvature;
 pub mod raster;
 pub mod lbfgs;
 pub mod shape_fit;
+pub mod icp;
 pub mod blend;
 pub mod ply;
 #[doc(hidden)]

@@ -7,7 +7,7 @@ from ..chi2 import chi2_sf  # the χ² tail without scipy (scipy.special costs 0
 
 from ..names import LANDMARK_NAMES, NOSE_TIP
 from .gaussian import mahalanobis2
-from .pose import similarity_icp, trimmed_icp
+from .pose import similarity_icp, surface_icp
 from .start import _PATCH_CACHE, packaged_template
 
 
@@ -61,8 +61,7 @@ def patch_localise(mesh, model, pose, opts):
     for i, nm in enumerate(LANDMARK_NAMES):
         local = scale * (model.graph_points[i] + model.offset_mean[i])
         expected.append(local @ r.T + t)
-        rp, tp, prms, _ = trimmed_icp(scale * patches[i], mesh.kdtree, r, t, iters=20, keep=0.9,
-                                      normals=mesh.vertex_normals)
+        rp, tp, prms, _ = surface_icp(scale * patches[i], mesh.surface, [(r, t)], iters=20, keep=0.9)[0]
         x = local @ rp.T + tp
         m2 = float(mahalanobis2((x - expected[-1]) @ r / scale, np.zeros(3), model.offset_cov[i]))
         if m2 > RUNAWAY_M2:

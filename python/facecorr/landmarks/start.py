@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import LandmarkError
 from ..geometry.spatial import voxel_subsample
 from ..names import NOSE_TIP
-from .pose import fit_poses, normal_sweep_starts, trimmed_icp
+from .pose import fit_poses, normal_sweep_starts, surface_icp, trimmed_icp
 from .protrusion import nose_tip_candidates
 
 
@@ -77,6 +77,19 @@ def _pose_score(points, tree, r, t, normals, kind: str, scale: float = 1.0, iter
     if kind == "trimmed":
         return rms
     return float(np.mean(np.minimum(np.asarray(d), TRUNCATION_MM) ** 2))
+
+
+def _pose_scores(points, mesh, poses, kind: str, iters: int = 10) -> list:
+    """:func:`_pose_score` of every pose (R, t, scale) of ``poses`` on ``mesh``: the same scores,
+    the ICPs in Rust on ``mesh.surface`` (:func:`.pose.surface_icp`), the poses of one template
+    size in one call (in parallel)."""
+    out = [0.0] * len(poses)
+    for s in sorted({float(p[2]) for p in poses}):
+        ks = [k for k, p in enumerate(poses) if float(p[2]) == s]
+        fits = surface_icp(s * points, mesh.surface, [poses[k][:2] for k in ks], iters=iters)
+        for k, (_, _, rms, d) in zip(ks, fits):
+            out[k] = rms if kind == "trimmed" else float(np.mean(np.minimum(d, TRUNCATION_MM) ** 2))
+    return out
 
 
 #: The truncation distance of the ``"truncated"`` pose score, mm: a skin point that matches lies
@@ -143,8 +156,8 @@ def protrusion_pose(mesh, model, opts, timer, name):
         # the 2 upside-down results of the 350 test scans, the right pose had the lowest
         # whole-template residual while its upper-face residual was 0.1-0.15 mm higher.
         full = _template_surface_points(model, float(opts.pose_score_spacing))
-        scores = [_pose_score(full, mesh.kdtree, pr, pt, mesh.vertex_normals, opts.pose_score, s,
-                              int(opts.pose_score_iters)) for pr, pt, _, s, _ in poses]
+        scores = _pose_scores(full, mesh, [(pr, pt, s) for pr, pt, _, s, _ in poses], opts.pose_score,
+                              int(opts.pose_score_iters))
         if opts.pose_height_weight > 0 and opts.poses_per_tip > 0:
             # a nose tip stands out of its ball: a pose seeded at a higher protrusion is likelier
             scores = [sc - float(opts.pose_height_weight) * p[4] for sc, p in zip(scores, poses)]
@@ -155,8 +168,8 @@ def protrusion_pose(mesh, model, opts, timer, name):
         for i in chosen:
             r, t, rms, s, _ = poses[i]
             if not fine:
-                r, t, rms, _ = trimmed_icp(s * pose_points(model, opts.pose_points_radius), mesh.kdtree, r, t, iters=40,
-                                           normals=mesh.vertex_normals)
+                r, t, rms, _ = surface_icp(s * pose_points(model, opts.pose_points_radius), mesh.surface, [(r, t)],
+                                           iters=40)[0]
             out.append((r, t, rms, s))
     (r, t, rms, s), alternatives = out[0], out[1:]
     return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips], pose_rms=[p[2] for p in poses],
@@ -188,6 +201,8 @@ def _fit_poses_sized(mesh, model, starts, scales, n_best, fine_iters=40, coarse_
     if all(s == 1.0 for s in scales):  # the rigid search (bitwise as before)
         return [(pr, pt, rms, 1.0) for pr, pt, rms in
                 fit_poses(points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
-                          fine_iters=fine_iters, coarse_scan=coarse_scan, coarse_iters=coarse_iters)]
+                          fine_iters=fine_iters, coarse_scan=coarse_scan, coarse_iters=coarse_iters,
+                          surface=mesh.surface)]
     return fit_poses(points, mesh.kdtree, starts, n_best=n_best, normals=mesh.vertex_normals,
-                     scales=np.array(scales), fine_iters=fine_iters, coarse_scan=coarse_scan, coarse_iters=coarse_iters)
+                     scales=np.array(scales), fine_iters=fine_iters, coarse_scan=coarse_scan, coarse_iters=coarse_iters,
+                     surface=mesh.surface)

@@ -14,6 +14,7 @@ mod fingerprint;
 mod curvature;
 mod raster;
 mod shape_fit;
+mod icp;
 mod blend;
 mod ply;
 
@@ -29,6 +30,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     curvature::register(m)?;
     raster::register(m)?;
     shape_fit::register(m)?;
+    icp::register(m)?;
     blend::register(m)?;
     ply::register(m)?;
     Ok(())
