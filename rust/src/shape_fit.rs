@@ -103,11 +103,6 @@ pub struct ShapeFitOptions {
     /// Weight β of the tangential term w_i β ‖P_i (s_i − p̃_i)‖² (P_i = I − n_i n_iᵀ, s_i the soft
     /// target) beside the point-to-plane residual; used when `feature_lambda` > 0.
     pub w_tangential: f64,
-    /// Before each solve after a level's first, evaluate the energy with the new matches at the
-    /// current transforms; if it differs from the last solve's by at most `relax_tol` (relative),
-    /// the matches have settled and the level ends without that solve (false: always solve, the
-    /// paper's loop). Saves the short "confirming" solves (2-4 L-BFGS iterations each).
-    pub skip_settled_solves: bool,
 }
 
 impl Default for ShapeFitOptions {
@@ -136,7 +131,6 @@ impl Default for ShapeFitOptions {
             feature_tau: 2.0,
             feature_radius: 7.0,
             w_tangential: 0.5,
-            skip_settled_solves: true,
         }
     }
 }
@@ -582,29 +576,6 @@ pub fn fit(
             let n_valid = corr.weight.iter().filter(|&&v| v > 0.0).count();
             let seconds_correspond = t_corr.elapsed().as_secs_f64();
             let t_solve = std::time::Instant::now();
-            if opts.skip_settled_solves && e_prev.is_finite() {
-                // the new matches at the current transforms: if the energy barely moved, so
-                // would a solve (it starts where the last one converged); the level ends here
-                let ep = energy_gradient(&x, &pts, &adj, &corr, w, &mut gbuf);
-                if (e_prev - ep.total).abs() <= opts.relax_tol * e_prev.abs().max(1e-300) {
-                    solves.push(SolveRecord {
-                        level,
-                        w_smooth: w.smooth,
-                        w_rigid: w.rigid,
-                        energy: ep.total,
-                        e_data: ep.data,
-                        e_smooth: ep.smooth,
-                        e_rigid: ep.rigid,
-                        e_landmark: ep.landmark,
-                        n_valid,
-                        iterations: 0,
-                        evaluations: 1,
-                        seconds_correspond,
-                        seconds_solve: t_solve.elapsed().as_secs_f64(),
-                    });
-                    break;
-                }
-            }
             let energy = |xx: &[f64], g: &mut [f64]| energy_gradient(xx, &pts, &adj, &corr, w, g).total;
             let rep = if opts.precondition {
                 pc.rebuild(&pts, &adj, &corr, w);
@@ -753,7 +724,6 @@ mod tests {
             relax_tol: 1e-3,
             memory: 10,
             max_distance: f64::INFINITY,
-            skip_settled_solves: false,
             ..Default::default()
         };
         let res = fit(&tv, &tf, &scan, &anchors, &opts);

@@ -19,11 +19,9 @@ from ..options import resolve
 #: The defaults: the paper's weights (ω_data 1, ω_smooth 20000, ω_rigid 10, ≤ 1000 L-BFGS
 #: iterations per solve) with fewer weight levels relaxed faster (8 levels × 0.38: ω_smooth down to
 #: 23, near where the paper's 12 halvings end, 10), L-BFGS memory 5 and
-#: relative-change tolerances 1e-3 for an inner solve and 1e-2 for "negligible" (when to relax;
-#: checked before a confirming solve too, ``skip_settled_solves``):
+#: relative-change tolerances 1e-3 for an inner solve and 1e-2 for "negligible" (when to relax):
 #: about the same error for less CPU (BENCHMARKS.md, "Where the defaults come from").
-#: ``rel_tol=1e-4, n_levels=12, relax_factor=0.5, memory=10, relax_tol=1e-3, max_distance=inf,
-#: skip_settled_solves=False`` is the paper-literal
+#: ``rel_tol=1e-4, n_levels=12, relax_factor=0.5, memory=10, relax_tol=1e-3, max_distance=inf`` is the paper-literal
 #: run.
 @dataclass(frozen=True)
 class ShapeFitOptions:
@@ -71,10 +69,6 @@ class ShapeFitOptions:
     feature_tau: float = 2.0
     feature_radius: float = 7.0
     w_tangential: float = 0.5
-    # A level's next solve is skipped when the energy with the re-found matches, at the current
-    # transforms, is within ``relax_tol`` of the last solve's: the matches have settled and the
-    # solve would only confirm it (2-4 L-BFGS iterations). False: always solve (the paper).
-    skip_settled_solves: bool = True
 
 
 @dataclass

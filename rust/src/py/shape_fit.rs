@@ -93,7 +93,7 @@ fn shape_fit_energy<'py>(
 #[pyo3(signature = (template_vertices, template_faces, scan,
     anchor_ids, anchor_points, *, w_data, w_smooth, w_rigid, relax_factor, n_levels, max_icp, relax_tol,
     max_iter, rel_tol, memory, normal_angle_deg, max_distance, reject_boundary, surface_k, angle_band_deg,
-    distance_band, w_landmark, template_weight, precondition, feature_lambda, feature_tau, feature_radius, w_tangential, skip_settled_solves))]
+    distance_band, w_landmark, template_weight, precondition, feature_lambda, feature_tau, feature_radius, w_tangential))]
 #[allow(clippy::too_many_arguments)]
 fn shape_fit<'py>(
     py: Python<'py>, template_vertices: PyReadonlyArray2<'py, f64>, template_faces: PyReadonlyArray2<'py, i64>,
@@ -102,7 +102,7 @@ fn shape_fit<'py>(
     w_data: f64, w_smooth: f64, w_rigid: f64, relax_factor: f64, n_levels: usize, max_icp: usize, relax_tol: f64,
     max_iter: usize, rel_tol: f64, memory: usize, normal_angle_deg: f64, max_distance: f64, reject_boundary: bool,
     surface_k: usize, angle_band_deg: f64, distance_band: f64, w_landmark: f64, template_weight: Option<PyReadonlyArray1<'py, f64>>, precondition: bool,
-    feature_lambda: f64, feature_tau: f64, feature_radius: f64, w_tangential: f64, skip_settled_solves: bool,
+    feature_lambda: f64, feature_tau: f64, feature_radius: f64, w_tangential: f64,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>, Vec<Bound<'py, PyDict>>)> {
     let tv = points3(&template_vertices, "template_vertices")?;
     let n = tv.len();
@@ -164,7 +164,6 @@ fn shape_fit<'py>(
         feature_tau: nonneg(feature_tau, "feature_tau")?,
         feature_radius: nonneg(feature_radius, "feature_radius")?,
         w_tangential: nonneg(w_tangential, "w_tangential")?,
-        skip_settled_solves,
     };
     if opts.feature_lambda > 0.0 && !(opts.feature_tau > 0.0 && opts.feature_radius > 0.0) {
         return Err(value_err("feature_tau and feature_radius must be > 0 when feature_lambda > 0"));
@@ -193,7 +192,7 @@ fn shape_fit_default_options(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     set_fields!(d, o; w_data, w_smooth, w_rigid, relax_factor, n_levels, max_icp, relax_tol, max_iter, rel_tol, memory,
         normal_angle_deg, max_distance, reject_boundary, surface_k, angle_band_deg, distance_band, w_landmark, precondition,
-        feature_lambda, feature_tau, feature_radius, w_tangential, skip_settled_solves);
+        feature_lambda, feature_tau, feature_radius, w_tangential);
     Ok(d)
 }
 
