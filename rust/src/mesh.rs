@@ -54,6 +54,51 @@ pub fn vertex_areas(v: &[Vec3], f: &[Face]) -> Vec<f64> {
 /// All undirected edges of all faces (3M, with repetitions), sorted, with their use count:
 /// returns the unique edges `(i, j)` with `i < j` in lexicographic order and how many faces use each.
 pub fn edges_with_counts(f: &[Face]) -> (Vec<[usize; 2]>, Vec<u32>) {
+    // Bucketed by the smaller vertex (a counting sort, O(E)), then each bucket's few partners
+    // sorted: the same lexicographic output as sorting all 3M pairs, ~4x faster on a scan.
+    let n = f.iter().flat_map(|t| t.iter()).max().map_or(0, |&m| m + 1);
+    let mut start = vec![0usize; n + 1];
+    for t in f {
+        for k in 0..3 {
+            start[t[k].min(t[(k + 1) % 3]) + 1] += 1;
+        }
+    }
+    for i in 0..n {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut partner = vec![0usize; 3 * f.len()];
+    for t in f {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let (lo, hi) = if a < b { (a, b) } else { (b, a) };
+            partner[fill[lo]] = hi;
+            fill[lo] += 1;
+        }
+    }
+    let mut edges: Vec<[usize; 2]> = Vec::with_capacity(3 * f.len() / 2 + 1);
+    let mut counts: Vec<u32> = Vec::with_capacity(3 * f.len() / 2 + 1);
+    for a in 0..n {
+        let bucket = &mut partner[start[a]..start[a + 1]];
+        bucket.sort_unstable();
+        let mut k = 0;
+        while k < bucket.len() {
+            let b = bucket[k];
+            let mut c = 0u32;
+            while k < bucket.len() && bucket[k] == b {
+                c += 1;
+                k += 1;
+            }
+            edges.push([a, b]);
+            counts.push(c);
+        }
+    }
+    (edges, counts)
+}
+
+/// The reference of [`edges_with_counts`]: all 3M pairs sorted, then run-length counted.
+#[cfg(test)]
+fn edges_with_counts_by_sort(f: &[Face]) -> (Vec<[usize; 2]>, Vec<u32>) {
     let mut all: Vec<(usize, usize)> = Vec::with_capacity(3 * f.len());
     for t in f {
         for k in 0..3 {
@@ -61,9 +106,9 @@ pub fn edges_with_counts(f: &[Face]) -> (Vec<[usize; 2]>, Vec<u32>) {
             all.push(if a < b { (a, b) } else { (b, a) });
         }
     }
-    all.par_sort_unstable();
-    let mut edges: Vec<[usize; 2]> = Vec::with_capacity(all.len() / 2 + 1);
-    let mut counts: Vec<u32> = Vec::with_capacity(all.len() / 2 + 1);
+    all.sort_unstable();
+    let mut edges: Vec<[usize; 2]> = Vec::new();
+    let mut counts: Vec<u32> = Vec::new();
     for e in all {
         match edges.last() {
             Some(last) if last[0] == e.0 && last[1] == e.1 => *counts.last_mut().unwrap() += 1,
@@ -234,6 +279,25 @@ pub fn components(v: &[Vec3], f: &[Face]) -> Vec<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bucketed_edges_equal_the_sorted_reference() {
+        // random faces over few vertices: repeated edges, degenerate and non-manifold ones too
+        let mut x: u64 = 0x9E3779B97F4A7C15;
+        let mut next = |m: usize| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x % m as u64) as usize
+        };
+        for n in [1usize, 3, 7, 40, 500] {
+            for m in [0usize, 1, 5, 200, 3000] {
+                let f: Vec<Face> = (0..m).map(|_| [next(n), next(n), next(n)]).collect();
+                assert_eq!(edges_with_counts(&f), edges_with_counts_by_sort(&f), "n {n} m {m}");
+            }
+        }
+        assert_eq!(edges_with_counts(&[]), (vec![], vec![]));
+    }
 
     /// Two triangles forming the unit square in z = 0, plus a separate small triangle.
     fn sample() -> (Vec<Vec3>, Vec<Face>) {
