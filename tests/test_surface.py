@@ -131,3 +131,18 @@ def test_shape_fit_weights_agree_with_the_numpy_weights():
     cos = np.einsum("ij,ij->i", vertex_normals(moved, f), normal)
     w = match_weights(cos, dist, bshare, 80.0, 10.0, 5.0, 1.0)
     assert 0 < res.solves[0]["n_valid"] == int((w > 0).sum()) < len(v)
+
+
+def test_a_surface_on_the_meshs_kdtree_answers_as_one_with_its_own():
+    """Mesh.surface shares Mesh.kdtree's tree (built once per scan): the same closest points as a
+    Surface that builds its own, and a tree over other points is refused."""
+    v, f = bumpy_grid()
+    mesh = Mesh(v, f)
+    f64 = np.ascontiguousarray(f, dtype=np.int64)
+    own = _core.Surface(v, f64, mesh.vertex_normals, mesh.is_boundary)
+    q = np.random.default_rng(3).uniform(-2, 25, (300, 3))
+    for k in (0, 1, 3):
+        for a, b in zip(own.closest(q, k), mesh.surface.closest(q, k)):
+            np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="not over these vertices"):
+        _core.Surface(v + 1.0, f64, mesh.vertex_normals, mesh.is_boundary, mesh.kdtree._tree)

@@ -14,6 +14,8 @@
 
 use rayon::prelude::*;
 
+use std::sync::Arc;
+
 use crate::kdtree::KdTree3;
 use crate::vec3::{add, dot, scale, sub, Vec3};
 
@@ -33,7 +35,7 @@ pub struct SurfacePoint {
 /// A triangle mesh prepared for closest-point queries: KD-tree over the vertices, the
 /// vertex→triangle incidence (CSR), unit vertex normals and 0/1 boundary flags.
 pub struct Surface {
-    tree: KdTree3,
+    tree: Arc<KdTree3>,
     faces: Vec<[usize; 3]>,
     vf_offsets: Vec<usize>,
     vf_faces: Vec<u32>,
@@ -110,7 +112,17 @@ impl Surface {
     /// Build from vertices (finite, mm), triangles (indices checked by the caller), unit vertex
     /// normals and boundary flags, all per vertex.
     pub fn new(points: Vec<Vec3>, faces: Vec<[usize; 3]>, normals: Vec<Vec3>, is_boundary: &[bool]) -> Result<Self, String> {
-        let n = points.len();
+        if points.is_empty() {
+            return Err("the surface has no vertices".into());
+        }
+        let tree = Arc::new(KdTree3::new(points)?);
+        Self::with_tree(tree, faces, normals, is_boundary)
+    }
+
+    /// [`Surface::new`] on an existing KD-tree of the vertices (shared, not rebuilt: a scan's
+    /// tree serves both the nearest-vertex queries and the closest-point ones).
+    pub fn with_tree(tree: Arc<KdTree3>, faces: Vec<[usize; 3]>, normals: Vec<Vec3>, is_boundary: &[bool]) -> Result<Self, String> {
+        let n = tree.len();
         if n == 0 {
             return Err("the surface has no vertices".into());
         }
@@ -137,7 +149,6 @@ impl Surface {
                 fill[v] += 1;
             }
         }
-        let tree = KdTree3::new(points)?;
         let boundary = is_boundary.iter().map(|&b| if b { 1.0 } else { 0.0 }).collect();
         Ok(Self { tree, faces, vf_offsets: count, vf_faces, normals, boundary })
     }
@@ -160,6 +171,11 @@ impl Surface {
     /// The KD-tree over the vertices.
     pub fn tree(&self) -> &KdTree3 {
         &self.tree
+    }
+
+    /// The shared KD-tree over the vertices.
+    pub fn shared_tree(&self) -> Arc<KdTree3> {
+        self.tree.clone()
     }
 
     /// Closest point of the surface to `q` among the triangles around its `k` nearest vertices

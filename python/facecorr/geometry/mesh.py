@@ -309,10 +309,11 @@ class Mesh:
     def surface(self):
         """``facecorr._core.Surface``: the triangles prepared for closest-point queries in Rust
         (``surface.closest(points (Q, 3), k)`` -> face, bary, point, dist, normal, boundary share),
-        with the vertex normals and boundary flags interpolated; built on first use."""
+        with the vertex normals and boundary flags interpolated; built on first use, on the
+        :attr:`kdtree`'s tree (one KD-tree of the scan serves both)."""
         return _core.Surface(self.vertices, np.ascontiguousarray(self.faces, dtype=np.int64),
                              np.ascontiguousarray(self.vertex_normals, dtype=np.float64),
-                             np.ascontiguousarray(self.is_boundary, dtype=bool))
+                             np.ascontiguousarray(self.is_boundary, dtype=bool), self.kdtree._tree)
 
     @cached_property
     def triangle_set(self):

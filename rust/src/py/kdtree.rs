@@ -12,7 +12,7 @@ use crate::kdtree::KdTree3;
 /// KD-tree over (N, 3) points; k-nearest and radius queries parallel over the queries.
 #[pyclass(frozen, module = "facecorr._core")]
 pub struct KdTree {
-    inner: Arc<KdTree3>,
+    pub(crate) inner: Arc<KdTree3>,
 }
 
 #[pymethods]

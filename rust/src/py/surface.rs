@@ -8,6 +8,7 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2}
 use pyo3::prelude::*;
 
 use super::util::{index_rows, points3, run, value_err};
+use super::kdtree::KdTree;
 use crate::surface::Surface as CoreSurface;
 
 /// A triangle mesh prepared for closest-point queries: vertices (N, 3) mm, faces (M, 3),
@@ -19,16 +20,28 @@ pub struct Surface {
 
 #[pymethods]
 impl Surface {
+    /// `tree`: optional `KdTree` built over exactly these vertices (shared instead of rebuilt).
     #[new]
+    #[pyo3(signature = (vertices, faces, normals, is_boundary, tree=None))]
     fn new(
         py: Python<'_>, vertices: PyReadonlyArray2<'_, f64>, faces: PyReadonlyArray2<'_, i64>,
-        normals: PyReadonlyArray2<'_, f64>, is_boundary: PyReadonlyArray1<'_, bool>,
+        normals: PyReadonlyArray2<'_, f64>, is_boundary: PyReadonlyArray1<'_, bool>, tree: Option<&KdTree>,
     ) -> PyResult<Self> {
         let v = points3(&vertices, "vertices")?;
         let f = index_rows::<3>(&faces, v.len(), "faces")?;
         let n = points3(&normals, "normals")?;
         let b: Vec<bool> = is_boundary.as_array().to_vec();
-        let s = run(py, "Surface", move || CoreSurface::new(v, f, n, &b))?.map_err(value_err)?;
+        let s = match tree {
+            Some(t) => {
+                let shared = t.inner.clone();
+                if shared.points() != v.as_slice() {
+                    return Err(value_err("the KD-tree is not over these vertices"));
+                }
+                run(py, "Surface", move || CoreSurface::with_tree(shared, f, n, &b))?
+            }
+            None => run(py, "Surface", move || CoreSurface::new(v, f, n, &b))?,
+        }
+        .map_err(value_err)?;
         Ok(Self { inner: Arc::new(s) })
     }
 
