@@ -824,3 +824,37 @@ def test_wrl_exponential_use_expansion_is_refused_quickly(tmp_path):
     # a few USEs are fine: L0..L3 at the top level = 1 + 2 + 4 + 8 copies of the triangle
     m = load_bytes(tmp_path, "few.wrl", "\n".join(lines[:5]))
     assert m.n_faces == 1 and m.meta["n_duplicate_faces_dropped"] == 1 + 2 + 4 + 8 - 1
+
+
+def _equal_rows_by_lexsort(a):
+    """The numpy reference of ``io.load._equal_rows`` (its implementation before the Rust hash):
+    first occurrences in file order, each row's group numbered in that order."""
+    order = np.lexsort(a.T[::-1])  # stable: equal rows keep their file order
+    s = a[order]
+    new = np.ones(len(a), dtype=bool)
+    new[1:] = (s[1:] != s[:-1]).any(axis=1)
+    lex_group = np.empty(len(a), dtype=np.int64)
+    lex_group[order] = np.cumsum(new) - 1
+    first_lex = order[new]
+    rank = np.empty(len(first_lex), np.int64)
+    rank[np.argsort(first_lex)] = np.arange(len(first_lex))
+    return np.sort(first_lex), rank[lex_group]
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(1, 300), distinct=st.integers(1, 40), ints=st.booleans(), seed=st.integers(0, 2**31))
+def test_equal_rows_hash_matches_the_lexsort_reference(n, distinct, ints, seed):
+    """Rows drawn from a few distinct ones (many repeats), float64 (with -0.0 against 0.0, which
+    are equal) or int64: the same first occurrences and groups as the lexsort."""
+    from facecorr.io.load import _equal_rows
+
+    rng = np.random.default_rng(seed)
+    pool = rng.integers(-3, 4, (distinct, 3))
+    a = pool[rng.integers(0, distinct, n)]
+    if not ints:
+        a = a.astype(np.float64) * 0.5
+        a[rng.random(a.shape) < 0.2] *= -1.0  # 0.0 -> -0.0 in places
+    first, group = _equal_rows(a)
+    ref_first, ref_group = _equal_rows_by_lexsort(a)
+    np.testing.assert_array_equal(first, ref_first)
+    np.testing.assert_array_equal(group, ref_group)

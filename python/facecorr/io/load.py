@@ -405,29 +405,23 @@ _MAX_COORD = 1e15
 
 
 def _equal_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(first, group) of the rows of ``a`` (N, k): ``first`` (G,) the index of each group of equal
-    rows' first occurrence, groups in lexicographic order of their rows, and ``group`` (N,) each
-    row's group. A column-wise lexsort: ~5x faster than ``np.unique(axis=0)`` on millions of rows."""
-    order = np.lexsort(a.T[::-1])  # stable: equal rows keep their file order
-    s = a[order]
-    new = np.ones(len(a), dtype=bool)
-    new[1:] = (s[1:] != s[:-1]).any(axis=1)
-    group = np.empty(len(a), dtype=np.int64)
-    group[order] = np.cumsum(new) - 1
-    return order[new], group
+    """(first, group) of the rows of ``a`` (N, 3) float64 or int64: ``first`` (G,) the index of
+    each group of equal rows' first occurrence, in file order, and ``group`` (N,) each row's group
+    (an index into ``first``). Hashed in Rust (``_core.equal_rows``): on a 56k-vertex scan 5-10x
+    faster than the lexsort it replaces (the reference in ``tests/test_io.py``)."""
+    from .. import _core
+
+    return _core.equal_rows(np.ascontiguousarray(a))
 
 
 def _merge_duplicates(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Merge exactly equal vertices, keeping first occurrences in their original order: (V', F',
     kept) with ``kept`` the original ids of the vertices of V'."""
-    first, inverse = _equal_rows(V)
+    first, group = _equal_rows(V)
     if len(first) == len(V):
         return V, F, np.arange(len(V))
-    keep = np.sort(first)  # kept vertices in file order
-    new_of_unique = np.empty(len(first), np.int64)
-    new_of_unique[np.argsort(first)] = np.arange(len(first))  # unique group -> new id
-    remap = new_of_unique[inverse]
-    return V[keep], remap[F], keep
+    # groups are numbered in file order of their first vertex: a group's number is its new id
+    return V[first], group[F], first
 
 
 def _clean(V, F, name: str, merge_duplicates: bool):
@@ -474,9 +468,8 @@ def _clean(V, F, name: str, merge_duplicates: bool):
     if len(F) == 0:
         raise MeshError(f"{name}: all {len(degenerate)} faces are degenerate (zero area)")
     # the same triangle twice (any rotation or orientation): keep the first
-    first, _ = _equal_rows(np.sort(F, axis=1))
+    first, _ = _equal_rows(np.sort(F, axis=1))  # first occurrences, in file order
     meta["n_duplicate_faces_dropped"] = int(len(F) - len(first))
-    first = np.sort(first)
     return V, F[first], meta, vertex_ids, face_ids[first]
 
 

@@ -52,7 +52,32 @@ fn mesh_boundary_vertices<'py>(py: Python<'py>, faces: PyReadonlyArray2<'py, i64
     Ok(ids_to_array(b).into_pyarray(py))
 }
 
+/// (first (G,) int64, group (R,) int64) of the rows of an (R, 3) float64 or int64 array: each
+/// group of equal rows' first row (in row order) and each row's group (`crate::mesh::first_of_equal_rows`;
+/// floats compare by value: -0.0 equals 0.0; NaN rows are the caller's to refuse).
+#[pyfunction]
+fn equal_rows<'py>(py: Python<'py>, rows: &Bound<'py, PyAny>) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>)> {
+    let keys: Vec<[u64; 3]> = if let Ok(a) = rows.extract::<PyReadonlyArray2<'py, f64>>() {
+        let a = a.as_array();
+        if a.ncols() != 3 {
+            return Err(pyo3::exceptions::PyValueError::new_err("equal_rows: rows must be (R, 3)"));
+        }
+        a.rows().into_iter().map(|r| [(r[0] + 0.0).to_bits(), (r[1] + 0.0).to_bits(), (r[2] + 0.0).to_bits()]).collect()
+    } else if let Ok(a) = rows.extract::<PyReadonlyArray2<'py, i64>>() {
+        let a = a.as_array();
+        if a.ncols() != 3 {
+            return Err(pyo3::exceptions::PyValueError::new_err("equal_rows: rows must be (R, 3)"));
+        }
+        a.rows().into_iter().map(|r| [r[0] as u64, r[1] as u64, r[2] as u64]).collect()
+    } else {
+        return Err(pyo3::exceptions::PyTypeError::new_err("equal_rows: rows must be a float64 or int64 (R, 3) array"));
+    };
+    let (first, group) = run(py, "equal_rows", move || core::first_of_equal_rows(&keys))?;
+    Ok((ids_to_array(first).into_pyarray(py), ids_to_array(group).into_pyarray(py)))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(equal_rows, m)?)?;
     m.add_function(wrap_pyfunction!(mesh_face_areas, m)?)?;
     m.add_function(wrap_pyfunction!(mesh_vertex_normals, m)?)?;
     m.add_function(wrap_pyfunction!(mesh_vertex_areas, m)?)?;
