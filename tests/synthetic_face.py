@@ -35,8 +35,10 @@ def _model():
     return _MODEL
 
 
-def make_scan(seed=0, expression=None, identity_sigma=1.0, noise=0.1, rotate=True):
-    """Returns (scan Mesh, landmarks dict, gt (N_template, 3), expression dict)."""
+def make_scan(seed=0, expression=None, identity_sigma=1.0, noise=0.1, rotate=True, warp=None):
+    """Returns (scan Mesh, landmarks dict, gt (N_template, 3), expression dict). ``warp``: optional
+    function (N, 3) -> (N, 3) of the model's vertices (model frame, mm: y up, z forward), applied
+    after identity and expression (a face outside the model's span)."""
     m = _model()
     rng = np.random.default_rng(seed)
     names = list(m["expression_names"])
@@ -46,6 +48,8 @@ def make_scan(seed=0, expression=None, identity_sigma=1.0, noise=0.1, rotate=Tru
     v = v + np.tensordot(rng.normal(0, identity_sigma, 100), m["identity"].astype(np.float64), axes=1)
     for k, w in expression.items():
         v = v + w * m["expression"][names.index(k)].astype(np.float64)
+    if warp is not None:
+        v = np.asarray(warp(v), dtype=np.float64)
     parts = list(m["part_names"])
     use = np.isin(m["part_id"], [parts.index(p) for p in ("face", "head_neck", "mouth_socket", "gums_tongue", "teeth")])
     nose = v[m["landmarks68"][30]]

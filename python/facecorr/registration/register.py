@@ -22,6 +22,7 @@ from ..options import resolve
 from ..names import LANDMARK_NAMES
 from .alignment import ALIGN_MODES, align_landmarks, apply_transform
 from .expression import ExpressionFit, ExpressionOptions, fit_expression, rim_mask
+from .mouth import MouthSearchOptions, search_mouth
 from .shape import ShapeFit, ShapeFitOptions, fit_shape
 
 __all__ = ["RegistrationResult", "RegisterOptions", "register"]
@@ -120,6 +121,9 @@ class RegisterOptions:
     identity_modes: object = None
     expression: ExpressionOptions = field(default_factory=ExpressionOptions)
     shape: ShapeFitOptions = field(default_factory=lambda: ShapeFitOptions(w_landmark=10.0))
+    # Before the shape fit, look for the scan's lips along the face's vertical axis and move the
+    # fitted template's mouth onto them when it stands clearly elsewhere (see mouth.py; None: off).
+    mouth_search: MouthSearchOptions | None = field(default_factory=MouthSearchOptions)
 
     def __post_init__(self):
         if self.alignment not in ALIGN_MODES:
@@ -279,11 +283,17 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
         timings["expression"] = 0.0
     alpha = expr.alpha
 
+    start = expr.vertices
+    if opts.fit_shape and opts.mouth_search is not None and opts.fit_expression:
+        t0 = time.perf_counter()
+        start, details["mouth_search"] = search_mouth(expr.vertices, template, mesh, transform, opts.mouth_search,
+                                                      exclude=rim_mask(template, 1))
+        timings["mouth_search"] = time.perf_counter() - t0
     if opts.fit_shape:
         tw = None
         if opts.shape_lip_rim_rings >= 0:
             tw = np.where(rim_mask(template, int(opts.shape_lip_rim_rings)), 0.0, 1.0)
-        shape = fit_shape(expr.vertices, template.faces, mesh, anchors=(ids, scan_lm), template_weight=tw,
+        shape = fit_shape(start, template.faces, mesh, anchors=(ids, scan_lm), template_weight=tw,
                           options=opts.shape)
         timings["shape"] = shape.seconds
         details["shape_solves"] = shape.solves
