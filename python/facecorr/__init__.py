@@ -20,7 +20,7 @@ or from a lower floor (never upwards, never sideways between two packages of one
     4  landmarks, registration          the two stages
     3  template, synth, render          the template, the synthetic database, all plotting
     2  io                               meshes in and out, atomic writes
-    1  geometry                         Mesh, KD-tree, geodesics, descriptors, curvature, transforms
+    1  geometry                         Mesh, KD-tree, ICP, geodesics, descriptors, curvature, transforms
     0  errors, names, options, threads, chi2, _core   the base
 """
 

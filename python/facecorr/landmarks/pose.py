@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _core
+from ..geometry.icp import surface_icp  # noqa: F401  (re-exported: moved to geometry.icp for the mouth search)
 from ..geometry.transforms import axis_angle, kabsch, rotation_between, rotation_from_vector
 
 
@@ -82,26 +82,6 @@ def trimmed_icp(points: np.ndarray, tree, r: np.ndarray, t: np.ndarray, iters: i
     d = np.asarray(d)
     rms = float(np.sqrt(np.mean(np.sort(d)[:n_keep] ** 2)))
     return r, t, rms, d
-
-
-def surface_icp(points: np.ndarray, surface, starts, iters: int = 20, keep: float = 0.8, tol: float = 1e-5) -> list:
-    """:func:`trimmed_icp` (point-to-plane) of ``points`` (P, 3) onto a mesh's ``surface``
-    (:attr:`facecorr.geometry.mesh.Mesh.surface`: its vertices and unit vertex normals) from every
-    start (R, t) at once: the Rust kernel of ``rust/src/icp.rs``, the starts in parallel.
-
-    The same method as :func:`trimmed_icp` with ``normals``, its reference; they agree to
-    rounding (the trimmed set is selected, not sorted, and the 6x6 step solved by Cholesky, not
-    lstsq; ``tests/test_pose.py``). Why: a 2000-point numpy ICP iteration spends as long in
-    Python overhead as in its nearest-neighbour query. Returns [(R (3, 3), t (3,), trimmed RMS mm,
-    distances (P,) mm), ...], one per start.
-    """
-    if len(starts) == 0:
-        return []
-    rs = np.array([np.asarray(r, dtype=np.float64) for r, _ in starts]).reshape(-1, 3, 3)
-    ts = np.array([np.asarray(t, dtype=np.float64) for _, t in starts]).reshape(-1, 3)
-    r_out, t_out, rms, d, _ = _core.trimmed_icp(surface, np.ascontiguousarray(points, dtype=np.float64), rs, ts,
-                                                int(iters), float(keep), float(tol))
-    return [(r_out[k], t_out[k], float(rms[k]), d[k]) for k in range(len(rs))]
 
 
 def fit_pose(points: np.ndarray, tree, starts, coarse_iters: int = 8, fine_iters: int = 40, keep: float = 0.8,

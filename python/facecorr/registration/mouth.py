@@ -82,7 +82,7 @@ def search_mouth(vertices: np.ndarray, template, scan, transform: np.ndarray, op
     ``rms_ratio`` (best landing's trimmed RMS / the lips' own where they stand), ``angle_deg``
     (its turn), ``vertical`` (|cos| of its move with the face's vertical axis), ``moved`` (bool).
     """
-    from ..landmarks.pose import surface_icp
+    from ..geometry.icp import surface_icp
 
     o = options
     ids, centre_t = _lips(template, float(o.margin))
