@@ -96,3 +96,15 @@ def test_a_face_of_the_model_is_left_as_it_was():
     off = register(mesh, lms, template=tpl, options=replace(RegisterOptions(), mouth_search=None))
     assert not on.details["mouth_search"]["moved"]
     np.testing.assert_allclose(on.vertices, off.vertices, rtol=0, atol=1e-6)
+
+
+def test_a_moved_mouth_is_flagged_in_the_result():
+    from facecorr.pipeline.correspond import CorrespondOptions, correspond
+
+    mesh, lms, _, _ = make_scan(3, expression={"mouthSmile_L": 0.2}, warp=_long_philtrum(14.0))
+    opts = CorrespondOptions(register=RegisterOptions(mouth_search=MouthSearchOptions(max_rms_ratio=0.7)), neutral=None)
+    res = correspond(mesh, landmarks=lms, options=opts)
+    moved = [f for f in res.flags if f.startswith("mouth_moved:")]
+    assert len(moved) == 1 and 3.0 <= float(moved[0].split(":")[1].split("mm")[0]) <= 15.0, res.flags
+    plain = correspond(mesh, landmarks=lms, options=CorrespondOptions(neutral=None))
+    assert not any(f.startswith("mouth_moved:") for f in plain.flags)

@@ -325,6 +325,10 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
                 break
             reg, positions = reg2, pos2
     flags += [f"implausible_fit:{d}" for d in doubts]
+    mouth = reg.details.get("mouth_search") or {}
+    if mouth.get("moved"):
+        flags.append(f"mouth_moved:{mouth['shift_mm']:.1f}mm (the lips fit the scan better there than where the "
+                     f"face model put them)")
     ids = np.asarray(template.landmark_ids)
     for name, d in zip(LANDMARK_NAMES, reg.scan_distance[ids]):
         if d > opts.off_surface_distance:
