@@ -38,7 +38,8 @@
 //!   ω_rigid 10x larger made the dense error worse on our test scans (1.69 / 1.73 vs 1.66 mm),
 //!   i.e. the paper's values already start in the "nearly affine" regime for mm-sized faces.
 //! * **Schedule defaults** (8 levels, memory 5, tolerances 1e-3 / 1e-2) were measured against the
-//!   paper-literal run (12 levels, 1e-4): same accuracy, about half the work (BENCHMARKS.md).
+//!   paper-literal run (12 levels, 1e-4): same accuracy, about half the work (BENCHMARKS.md);
+//!   `max_icp` 2 (was 5): a level's later solves barely moved (issue 17, "Throughput, sixth pass").
 
 use std::sync::Arc;
 
@@ -113,7 +114,7 @@ impl Default for ShapeFitOptions {
             w_rigid: 10.0,
             relax_factor: 0.38,
             n_levels: 8,
-            max_icp: 5,
+            max_icp: 2,
             relax_tol: 1e-2,
             max_iter: 1000,
             rel_tol: 1e-3,

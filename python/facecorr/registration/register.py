@@ -114,7 +114,9 @@ class RegisterOptions:
     jaw_select_rounds: object = 10
     # With jaw_select_rounds: the starts' rounds match every n-th template vertex only (they only
     # have to tell the starts apart; 1: every vertex); the best start goes on with every vertex.
-    jaw_start_stride: int = 1
+    # 2 since issue 17: the expression fit ~30 % faster, region means within 1 % in model and
+    # 2 % out of model (BENCHMARKS.md, "Throughput, sixth pass").
+    jaw_start_stride: int = 2
     # Identity modes fitted with the expression (see identity.py): None, "packaged" (the basis
     # shipped with facecorr), a path or an IdentityBasis; identity_modes keeps the first modes only.
     identity: object = "packaged"

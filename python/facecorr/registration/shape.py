@@ -37,7 +37,11 @@ class ShapeFitOptions:
     # 0.88 -> 0.79 mm) at no cost in model (BENCHMARKS.md, "Out of model, fourth pass").
     relax_factor: float = 0.38
     n_levels: int = 8               # weight levels (the paper: 12)
-    max_icp: int = 5                # closest-point updates per level
+    # Closest-point updates per level (each followed by an L-BFGS solve). 2 since issue 17: the
+    # third to fifth solves of a level took ~2 iterations each (re-found matches barely move
+    # the optimum); 5 -> 2 cut the fit's time by ~25 % with region means within 0.4 % in and
+    # out of model (BENCHMARKS.md, "Throughput, sixth pass").
+    max_icp: int = 2
     relax_tol: float = 1e-2         # relative energy change below which a level ends ("negligible")
     max_iter: int = 1000            # L-BFGS iterations per solve
     rel_tol: float = 1e-3           # relative change that ends a solve (the paper: 1e-4)
