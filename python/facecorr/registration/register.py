@@ -114,9 +114,10 @@ class RegisterOptions:
     jaw_select_rounds: object = 10
     # With jaw_select_rounds: the starts' rounds match every n-th template vertex only (they only
     # have to tell the starts apart; 1: every vertex); the best start goes on with every vertex.
-    # 2 since issue 17: the expression fit ~30 % faster, region means within 1 % in model and
-    # 2 % out of model (BENCHMARKS.md, "Throughput, sixth pass").
-    jaw_start_stride: int = 2
+    # 2 makes the expression fit ~30 % faster at region means within 1 % in model and 2 % out of
+    # model, but the fit less continuous in its input (a 5e-6 mm change of a scan moved the result
+    # by up to 2.1 mm on 35 test scans, 0.06 mm with 1; BENCHMARKS.md, "Throughput, sixth pass").
+    jaw_start_stride: int = 1
     # Identity modes fitted with the expression (see identity.py): None, "packaged" (the basis
     # shipped with facecorr), a path or an IdentityBasis; identity_modes keeps the first modes only.
     identity: object = "packaged"
