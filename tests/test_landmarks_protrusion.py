@@ -131,3 +131,51 @@ def test_keep_leaves_floating_pieces_out():
     kept = nose_tip_candidates(pts, nrm, k=2, spacing=0.0, keep=keep)
     assert [c[0] for c in kept] == [c[0] for c in alone]
     np.testing.assert_allclose([c[1] for c in kept], [c[1] for c in alone], atol=1e-9)
+
+
+def _dome(n=61, half=60.0, radius=120.0):
+    """A broad sphere cap (apex at the origin, looking along +z) with a small sharp bump off the
+    apex: the bump protrudes most from its 25 mm ball, the apex is furthest out along the cap's
+    axis of least variance (a nose the ball measure misses). Returns points, unit normals."""
+    x, y = np.meshgrid(np.linspace(-half, half, n), np.linspace(-half, half, n))
+    x, y = x.ravel(), y.ravel()
+    bump = 6 * np.exp(-((x - 35) ** 2 + (y + 30) ** 2) / 60)
+    z = np.sqrt(radius**2 - x**2 - y**2) - radius + bump
+    gb = -2 / 60 * bump
+    gx = -x / (z + radius - bump) + gb * (x - 35)
+    gy = -y / (z + radius - bump) + gb * (y + 30)
+    nrm = np.column_stack([-gx, -gy, np.ones_like(x)])
+    return np.column_stack([x, y, z]), nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+
+
+def test_axis_candidate_finds_the_point_furthest_out():
+    p, n = _dome()
+    plain = nose_tip_candidates(p, n, k=1, spacing=0.0)
+    both = nose_tip_candidates(p, n, k=1, spacing=0.0, extreme_axis=True)
+    assert len(plain) == 1 and np.linalg.norm(p[plain[0][0]][:2] - [35, -30]) < 6.0  # the ball: the bump
+    assert len(both) == 2 and both[0][0] == plain[0][0]
+    assert np.linalg.norm(p[both[1][0]] - [0, 0, 0]) < 3.0  # the axis: the apex
+    # the mirror image (outward = -z): still the apex
+    flipped = nose_tip_candidates(p * [1, 1, -1], n * [1, 1, -1], k=1, spacing=0.0, extreme_axis=True)
+    assert len(flipped) == 2 and np.linalg.norm(p[flipped[1][0]] - [0, 0, 0]) < 3.0
+    # the normals decide which way is out: seen from inside, the furthest point is on the rim
+    inward = nose_tip_candidates(p, -n, k=1, spacing=0.0, extreme_axis=True)
+    assert np.linalg.norm(p[inward[-1][0]][:2]) > 40.0
+
+
+def test_axis_candidate_is_not_repeated():
+    p, n = _grid()
+    plain = nose_tip_candidates(p, n, k=2, spacing=0.0, min_separation=20.0)
+    both = nose_tip_candidates(p, n, k=2, spacing=0.0, min_separation=20.0, extreme_axis=True)
+    assert [c[0] for c in both] == [c[0] for c in plain]  # the apex is already the first
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_axis_candidate_invariant_to_pose(seed):
+    p, n = _dome(n=41)
+    r = Rotation.random(random_state=seed).as_matrix()
+    t = np.random.default_rng(seed).normal(0, 100, 3)
+    c0 = nose_tip_candidates(p, n, k=1, spacing=0.0, extreme_axis=True)
+    c1 = nose_tip_candidates(p @ r.T + t, n @ r.T, k=1, spacing=0.0, extreme_axis=True)
+    assert [c[0] for c in c1] == [c[0] for c in c0]

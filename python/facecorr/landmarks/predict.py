@@ -87,6 +87,11 @@ class PredictOptions:
     nose_piece_fraction: float = 0.2
     protrusion_spacing: float = 3.0   # the scan voxel-subsampled at this spacing for the protrusion, mm
     protrusion_median_k: int = 13     # heights smoothed by the median of this many neighbours (hair spikes)
+    # + the point furthest out along the scan's axis of least variance as one more nose-tip
+    # candidate (protrusion.nose_tip_candidates' ``extreme_axis``): glasses and small faces can
+    # hide the tip from the ball measure; on ood_holdout 3 scans better, none worse, gross
+    # failures 8 -> 7 (BENCHMARKS.md, "Out of model, eighth pass").
+    axis_tip_candidate: bool = True
     n_poses: int = 5                  # distinct coarse poses refined and scored by the whole template
     pose_scales: tuple = (1.0,)       # template sizes the pose search starts from (faces differ by ±20 %)
     pose_score: str = "trimmed"       # whole-template score of a pose: "trimmed" RMS or "truncated" (start.py)

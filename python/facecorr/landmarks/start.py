@@ -1,6 +1,7 @@
 """The default start: a rigid pose of the template from the most protruding points.
 
-The ``n_tip_candidates`` most protruding points (:mod:`.protrusion`) each seed a sweep of rigid
+The ``n_tip_candidates`` most protruding points (:mod:`.protrusion`; and the point furthest out
+along the scan's viewing axis) each seed a sweep of rigid
 starts about their plane normal; a trimmed point-to-plane ICP of the template's upper face near
 the nose (:func:`pose_points`, :mod:`.pose`) refines each candidate's best (a face and its upside-down image), and the whole
 template's residual, less a share of the candidate's protrusion, picks among them: on raw scans a
@@ -100,7 +101,8 @@ TRUNCATION_MM = 3.0
 def protrusion_pose(mesh, model, opts, timer, name):
     """Default start: the ``n_tip_candidates`` most protruding points (:mod:`.protrusion`, on the
     pieces of at least ``nose_piece_fraction`` of the largest one's area, heights median-smoothed
-    over ``protrusion_median_k`` neighbours), each with a sweep of ``sweep_angles`` rotations about
+    over ``protrusion_median_k`` neighbours; with ``axis_tip_candidate`` also the point furthest
+    out along the scan's axis of least variance), each with a sweep of ``sweep_angles`` rotations about
     its plane normal at each of the template sizes ``pose_scales``, then the template ICP: each
     candidate's ``poses_per_tip`` best poses (0: the ``n_poses`` best of all candidates together);
     the pose with the best whole-template score (``pose_score``, less ``pose_height_weight`` × the
@@ -114,7 +116,7 @@ def protrusion_pose(mesh, model, opts, timer, name):
             keep = np.isin(mesh.components, np.flatnonzero(areas >= float(opts.nose_piece_fraction) * areas[0]))
         tips = nose_tip_candidates(mesh.vertices, mesh.vertex_normals, k=int(opts.n_tip_candidates), radius=radius,
                                    keep=keep, median_k=int(opts.protrusion_median_k),
-                                   spacing=float(opts.protrusion_spacing))
+                                   spacing=float(opts.protrusion_spacing), extreme_axis=bool(opts.axis_tip_candidate))
         if not tips or tips[0][1] < float(opts.min_protrusion):
             top = f"{tips[0][1]:.1f} mm" if tips else "none"
             raise LandmarkError(f"{name}: nothing protrudes like a nose (highest protrusion {top}, "
