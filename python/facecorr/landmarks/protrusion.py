@@ -83,7 +83,7 @@ def nose_tip_candidates(vertices: np.ndarray, normals: np.ndarray, k: int = 4, r
         glasses leave a hole over the nose bridge or a frame in front of it, and the tip's ball
         plane tilts or rises (2-4 mm of protrusion where a nose has ~9); a small face's nose
         fills less of the ball. Measured: the extreme point lies within 12 mm of the true tip on
-        82 of 98 `ood_test`, 40 of 42 `ood_holdout` and 68 of 70 in-model scans, and on every
+        84 of 98 `ood_test`, 40 of 42 `ood_holdout` and 68 of 70 in-model scans, and on every
         held-back scan whose tip the ball missed (BENCHMARKS.md, "Out of model, eighth pass").
 
     Returns
