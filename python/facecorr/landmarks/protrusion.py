@@ -84,7 +84,8 @@ def nose_tip_candidates(vertices: np.ndarray, normals: np.ndarray, k: int = 4, r
         plane tilts or rises (2-4 mm of protrusion where a nose has ~9); a small face's nose
         fills less of the ball. Measured: the extreme point lies within 12 mm of the true tip on
         84 of 98 `ood_test`, 40 of 42 `ood_holdout` and 68 of 70 in-model scans, and on every
-        held-back scan whose tip the ball missed (BENCHMARKS.md, "Out of model, eighth pass").
+        held-back scan whose tip the ball missed (`benches/nose_tip_candidates.py`; BENCHMARKS.md,
+        "Out of model, eighth pass").
 
     Returns
     -------
