@@ -183,7 +183,8 @@ def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch, f
 
     monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
     res = correspond(mesh, template=tpl)
-    assert calls == [PredictOptions(), wider]  # the second call is the wider search
+    sized = replace(PredictOptions(), pose_scales=(0.8,), retry=False)
+    assert calls == [PredictOptions(), wider, sized]  # then the wider search, then the smaller template
     assert "refit_wider_search_after_implausible_fit" in res.flags
     assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
     assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
@@ -211,7 +212,8 @@ def test_correspond_tries_the_start_searchs_other_poses_after_an_implausible_fit
 
     monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
     res = correspond(mesh, template=tpl)
-    assert calls == ["search", "alternative", "search"]  # first, the alternative pose, the wider search
+    # first, the alternative pose, the wider search, the smaller template's search
+    assert calls == ["search", "alternative", "search", "search"]
     assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
     assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
 
@@ -251,7 +253,7 @@ def test_refits_are_judged_by_fit_rms_and_identity_plausibility(monkeypatch, ide
     monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
     monkeypatch.setattr(reg_pkg, "register", register)
     res = correspond(mesh, template=tpl, options=CorrespondOptions(refit_identity_cost=identity_cost))
-    assert len(fits) == 3  # first, the alternative pose, the wider search
+    assert len(fits) == 4  # first, the alternative pose, the wider search, the smaller template
     assert refit_score(fits[2], 0.0) < refit_score(fits[1], 0.0)
     err = np.linalg.norm(res.vertices - gt, axis=1).mean()
     if identity_cost > 0:
@@ -260,6 +262,55 @@ def test_refits_are_judged_by_fit_rms_and_identity_plausibility(monkeypatch, ide
     else:
         assert np.allclose(res.vertices, fits[2].vertices + (res.vertices - fits[2].vertices).mean(0))
         assert err > 2.5
+
+
+@pytest.mark.parametrize("plausible", [True, False])
+def test_the_smaller_template_search_is_kept_only_when_the_model_explains_its_fit(monkeypatch, plausible):
+    """Every full-size reading wrong (turned 35 degrees), the search with the template at 0.8x
+    right: its fit is kept and flagged. When its fit is implausible (identity weights forced to
+    ‖β‖² = 300 of 40) it is not kept, though its fit RMS is the lowest."""
+    import facecorr.landmarks as lm_pkg
+    import facecorr.registration as reg_pkg
+    from facecorr.landmarks.predict import LandmarkResult
+    from facecorr.pipeline import correspond
+    from facecorr.pipeline.correspond import refit_score
+
+    tpl = load_template()
+    mesh, lms, gt, _ = make_scan(3)
+    sizes = []
+
+    def fake_predict(mesh_, model=None, options=None, start_pose=None):
+        sizes.append(None if options is None else tuple(options.pose_scales))
+        small = options is not None and tuple(options.pose_scales) == (0.8,)
+        pos = lms if small else _turned_about_the_nose(lms, 35.0)
+        shift = mesh_.vertices[0] - mesh.vertices[0]
+        pos = {k: np.asarray(v) + shift for k, v in pos.items()}
+        return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[],
+                              timings_s={"total": 0.0}, debug={"alternative_poses": []})
+
+    real, fits = reg_pkg.register, []
+
+    def register(*a, **k):
+        r = real(*a, **k)
+        if sizes[-1] == (0.8,) and not plausible:
+            r.details["identity_weights"] = [np.sqrt(300.0 / 40)] * 40
+            r.details["fit_rms_mm"] = 0.01
+        fits.append(r)
+        return r
+
+    monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
+    monkeypatch.setattr(reg_pkg, "register", register)
+    res = correspond(mesh, template=tpl)
+    assert sizes == [(1.0,), (1.0,), (0.8,)]  # first, the wider search, the smaller template
+    err = np.linalg.norm(res.vertices - gt, axis=1).mean()
+    if plausible:
+        assert err < 2.5
+        assert any(f.startswith("small_face:") for f in res.flags), res.flags
+        assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
+    else:
+        assert refit_score(fits[2], 0.003) < min(refit_score(f, 0.003) for f in fits[:2])
+        assert err > 2.5
+        assert not any(f.startswith("small_face:") for f in res.flags), res.flags
 
 
 def test_lower_face_chamfer_is_the_full_query_value():

@@ -217,7 +217,8 @@ class CorrespondOptions:
     start search (:meth:`PredictOptions.wider`) and from the start search's next best distinct
     poses (``PredictOptions.n_alternative_poses``), and the best-explained fit kept: the lowest fit
     RMS (mm) plus ``refit_identity_cost`` mm per unit of the identity weights' squared norm ‖β‖²
-    (:func:`refit_score`).
+    (:func:`refit_score`); then the start search with the template resized to each of
+    ``refit_pose_scales``, whose fit is kept only if it is also plausible.
     """
 
     predict: PredictOptions = field(default_factory=PredictOptions)
@@ -229,6 +230,12 @@ class CorrespondOptions:
     # on raw crops and unusual faces a fit on the wrong part can match the scan a little closer
     # (BENCHMARKS.md, "Out of model, fourth pass"; 0: the lowest RMS alone).
     refit_identity_cost: float = 0.003
+    # After those tries, the start search again with the template at each of these sizes (a face
+    # 0.73-0.88x the template's size, as on 14 of the 25 gross failures out of model, fits no pose
+    # of the full-size template); its fit replaces the best one only if it is better *and* the
+    # model explains it (not implausible): a smaller template also fits wrong parts of a scan
+    # closer (BENCHMARKS.md, "Out of model, ninth pass"; () : no sized try).
+    refit_pose_scales: tuple = (0.8,)
     # Given landmarks farther than this from every scan vertex (mm) are refused: they are in
     # another frame or unit, and the registration would land beside the scan.
     max_landmark_distance: float = 10.0
@@ -305,13 +312,20 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         # deformable fit from the face explains the scan far better (BENCHMARKS.md, issue 14).
         tries = [dict(start_pose=p) for p in pred.debug.get("alternative_poses", [])]
         tries.append(dict(options=replace(opts.predict.wider(), retry=False)))
-        for how in tries:
+        n_unsized = len(tries)
+        tries += [dict(options=replace(opts.predict, pose_scales=(float(s),), retry=False))
+                  for s in opts.refit_pose_scales]
+        for i_try, how in enumerate(tries):
             pred2 = predict_landmarks(work, model=model, **({"options": opts.predict} | how))
             pos2 = {k: np.asarray(v, float) for k, v in pred2.positions.items()}
             reg2 = register(work, pos2, template=template, options=reg_opts)
+            if i_try >= n_unsized and reg2.implausible():
+                continue  # a resized template's fit must convince the model on its own
             if refit_score(reg2, opts.refit_identity_cost) < refit_score(reg, opts.refit_identity_cost):
                 reg, positions, confidence = reg2, pos2, dict(pred2.confidence)
                 flags = list(pred2.flags)  # the first prediction's doubts no longer apply
+                if i_try >= n_unsized:
+                    flags.append(f"small_face:found with the template at {how['options'].pose_scales[0]:.2f}x")
                 doubts = reg.implausible()
         timings["refit"] = time.perf_counter() - t1
         flags.append("refit_wider_search_after_implausible_fit")
