@@ -346,7 +346,8 @@ def test_coarse_jaw_starts_query_a_part_and_end_on_every_vertex():
             return real.closest(q, k)
 
     mesh.__dict__["surface"] = Counting()
-    opts = RegisterOptions(fit_shape=False, jaw_start_stride=3)
+    # (no wide starts: this scan's lower-face chamfer, ~5 mm at its resolution, would add one)
+    opts = RegisterOptions(fit_shape=False, jaw_start_stride=3, jaw_wide_starts=())
     coarse = register(mesh, lms, template=tpl, options=opts)
     n_coarse = 2 * RegisterOptions().jaw_select_rounds
     data = sizes[-1]
@@ -357,6 +358,39 @@ def test_coarse_jaw_starts_query_a_part_and_end_on_every_vertex():
     d = np.linalg.norm(coarse.vertices - full.vertices, axis=1)
     assert np.median(d) < 0.2 and np.mean(np.linalg.norm(coarse.vertices - gt, axis=1)) < \
         1.05 * np.mean(np.linalg.norm(full.vertices - gt, axis=1)) + 0.05, (np.median(d), d.max())
+
+
+@pytest.mark.parametrize("chamfers, tried, chosen", [
+    ({0.0: 3.0, 0.3: 3.2, 0.6: 1.0}, [0.0, 0.3], 0.0),       # the lower face fits: no wide start
+    ({0.0: 4.0, 0.3: 4.2, 0.6: 3.8}, [0.0, 0.3, 0.6], 0.0),  # tried, 3.8 x 1.1 > 4.0: not enough
+    ({0.0: 4.0, 0.3: 4.2, 0.6: 3.5}, [0.0, 0.3, 0.6], 0.6),  # tried, 3.5 x 1.1 < 4.0: it wins
+])
+def test_wide_jaw_starts_are_tried_only_for_a_poorly_fitted_lower_face(monkeypatch, chamfers, tried, chosen):
+    """``jaw_wide_starts`` run only when the best of ``jaw_starts`` leaves a lower-face chamfer
+    above ``jaw_wide_chamfer``, and win only by the margin ``jaw_wide_margin``."""
+    import importlib
+    from types import SimpleNamespace
+
+    reg_mod = importlib.import_module("facecorr.registration.register")
+    tpl = load_template()
+    jaw = list(tpl.blendshape_names).index("jawOpen")
+    calls = []
+
+    def fake_fit(template, transform, mesh, landmarks=None, alpha0=None, identity=None, options=None, **kw):
+        calls.append(round(float(alpha0[jaw]), 6))
+        return SimpleNamespace(rounds=[{"stopped": True}], vertices=float(alpha0[jaw]), alpha=alpha0,
+                               transform=transform, identity_weights=None, seconds=0.0)
+
+    monkeypatch.setattr(reg_mod, "fit_expression", fake_fit)
+    monkeypatch.setattr(reg_mod, "_lower_face_chamfer", lambda t, v, m: chamfers[round(v, 6)])
+    opts = RegisterOptions()
+    best = reg_mod._fit_expression_multistart(tpl, None, None, None, tuple(opts.jaw_starts), ExpressionOptions(),
+                                              None, opts.jaw_select_rounds, 1, tuple(opts.jaw_wide_starts),
+                                              opts.jaw_wide_chamfer, opts.jaw_wide_margin)
+    assert (opts.jaw_starts, opts.jaw_wide_starts, opts.jaw_wide_chamfer, opts.jaw_wide_margin) == \
+        ((0.0, 0.3), (0.6,), 3.5, 0.1)
+    assert sorted(calls) == tried
+    assert best.vertices == chosen
 
 
 def test_anderson_solves_a_slow_linear_fixed_point_in_few_steps():
