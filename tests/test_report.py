@@ -293,7 +293,13 @@ def test_report_in_headless_chromium(batch, chromium, tmp_path):
         page = b.new_page(1400, 2400)
         seconds = page.navigate(page_path.as_uri(), ready="document.documentElement.dataset.ready === '1'")
         assert seconds < 10, seconds
-        # every row rendered, each thumbnail decoded (the page is tall enough for lazy images)
+        # every row rendered, each thumbnail decoded (the page is tall enough for lazy images);
+        # the browser decodes them after the page's script has run: on a loaded machine (the
+        # whole suite on 2 cores) a moment later, so wait for them, up to 10 s
+        decoded = "Array.from(document.querySelectorAll('#results tbody tr .thumb img')).every(i => i.naturalWidth > 0)"
+        deadline = time.monotonic() + 10.0
+        while not page.evaluate(decoded) and time.monotonic() < deadline:
+            time.sleep(0.05)
         rows = page.evaluate("Array.from(document.querySelectorAll('#results tbody tr')).map(tr => "
                              "[tr.cells[1].dataset.v, tr.getBoundingClientRect().height, "
                              "(tr.querySelector('.thumb img') || {}).naturalWidth || 0])")
