@@ -1,5 +1,6 @@
 //! Criterion benchmarks of the Rust kernels on synthetic inputs (no files needed):
-//! KD-tree build + 10k queries into 50k points (k = 1, 8); FMM and Dijkstra from one source on a
+//! KD-tree build + 10k queries into 50k points (k = 1, 8); the single-nearest query near a
+//! surface (facecorr's tree vs kiddo's); FMM and Dijkstra from one source on a
 //! 50k-vertex wavy surface; Finger Print of 100 centres x 8 radii (up to 25 mm) on it.
 //! Run: `cargo bench --bench kernels` (the Python side-by-side table: benches/compare_kernels.py).
 
@@ -42,6 +43,21 @@ fn bench_kdtree(c: &mut Criterion) {
             })
         });
     }
+    g.finish();
+    // The single-nearest query of the ICPs and closest-point passes: template-like query points
+    // within 3 mm of a scan-like surface, in surface order, answered by facecorr's own tree
+    // (rust/src/nearest.rs) and by kiddo's nearest_one, one thread.
+    let (v, _) = wavy_surface();
+    let near: Vec<[f64; 3]> = v.iter().step_by(5).map(|p| [p[0] + 0.3, p[1] - 0.2, p[2] + 6.0 * (r() - 0.5)]).collect();
+    let t = KdTree3::new(v.clone()).unwrap();
+    let mut g = c.benchmark_group("nearest 10k near a 50k surface");
+    g.sample_size(30);
+    g.bench_function("facecorr tree", |b| b.iter(|| black_box(near.iter().map(|q| t.nearest(q).0).sum::<usize>())));
+    g.bench_function("kiddo nearest_one", |b| {
+        b.iter(|| {
+            black_box(near.iter().map(|q| t.kiddo().query(q).nearest_one::<kiddo::SquaredEuclidean<f64>>().execute().item as usize).sum::<usize>())
+        })
+    });
     g.finish();
 }
 

@@ -168,3 +168,22 @@ def test_property_agrees_with_ckdtree(P, Q, k):
         dist = np.linalg.norm(P[ii[qi][ok]] - Q[qi], axis=1)
         np.testing.assert_allclose(dist, dd[qi][ok], rtol=1e-12, atol=1e-12)
         assert len(set(ii[qi][ok])) == ok.sum()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    P=arrays(np.float64, st.tuples(st.integers(1, 300), st.just(3)), elements=st.floats(-5, 5, allow_nan=False, width=16)),
+    Q=arrays(np.float64, st.tuples(st.integers(1, 30), st.just(3)), elements=coords),
+    seed=st.integers(0, 2**16),
+)
+def test_property_hinted_nearest_agrees_with_ckdtree(P, Q, seed):
+    """The single-nearest search (facecorr's own tree, rust/src/nearest.rs) from any hint: cKDTree's
+    distance, and among tied points (many here: coarse coordinates) the lowest index."""
+    t = KDTree(P)
+    dr, _ = cKDTree(P).query(Q)
+    hints = np.random.default_rng(seed).integers(-1, len(P) + 1, len(Q))
+    for d, i in (t.query(Q), t.query_hinted(Q, hints)):
+        np.testing.assert_allclose(d, dr, rtol=1e-12, atol=1e-12)
+        dist = np.linalg.norm(P - Q[:, None, :], axis=2)  # (Q, P)
+        lowest = np.argmax(dist <= dist.min(axis=1, keepdims=True), axis=1)
+        np.testing.assert_array_equal(i, lowest)

@@ -8,6 +8,7 @@ pub mod threads;
 pub mod vec3;
 pub mod mesh;
 pub mod kdtree;
+pub mod nearest;
 pub mod surface;
 pub mod soft_match;
 pub mod geodesic;
