@@ -112,6 +112,56 @@ impl NearestTree {
         (best.0 as usize, best.1)
     }
 
+    /// Append to `out` the indices of all points at distance `<= r` of `q` (as `d2.sqrt() <= r`),
+    /// in no particular order. A box wholly inside the ball is taken without a distance per point.
+    pub fn within_into(&self, q: &[f64; 3], r: f64, out: &mut Vec<u32>) {
+        if !self.ids.is_empty() && r >= 0.0 && self.nodes[0].box_d2(q).sqrt() <= r {
+            self.collect(0, q, r, out);
+        }
+    }
+
+    fn collect(&self, node: usize, q: &[f64; 3], r: f64, out: &mut Vec<u32>) {
+        let nd = &self.nodes[node];
+        // the farthest corner: every point of the box is no farther (rounding is monotone)
+        let mut far2 = 0.0;
+        for d in 0..3 {
+            let e = (q[d] - nd.lo[d]).abs().max((nd.hi[d] - q[d]).abs());
+            far2 += e * e;
+        }
+        if far2.sqrt() <= r {
+            let (a, b) = if nd.end != u32::MAX { (nd.start as usize, nd.end as usize) } else { self.range(node) };
+            out.extend_from_slice(&self.ids[a..b]);
+            return;
+        }
+        if nd.end != u32::MAX {
+            let (a, b) = (nd.start as usize, nd.end as usize);
+            for k in a..b {
+                let (dx, dy, dz) = (q[0] - self.xs[k], q[1] - self.ys[k], q[2] - self.zs[k]);
+                if (dx * dx + dy * dy + dz * dz).sqrt() <= r {
+                    out.push(self.ids[k]);
+                }
+            }
+            return;
+        }
+        for c in [nd.start as usize, nd.start as usize + 1] {
+            if self.nodes[c].box_d2(q).sqrt() <= r {
+                self.collect(c, q, r, out);
+            }
+        }
+    }
+
+    /// The range of reordered points under an inner node (its leftmost and rightmost leaves').
+    fn range(&self, node: usize) -> (usize, usize) {
+        let (mut l, mut r) = (node, node);
+        while self.nodes[l].end == u32::MAX {
+            l = self.nodes[l].start as usize;
+        }
+        while self.nodes[r].end == u32::MAX {
+            r = self.nodes[r].start as usize + 1;
+        }
+        (self.nodes[l].start as usize, self.nodes[r].end as usize)
+    }
+
     /// Descend from `node` (its box already found no farther than the best so far).
     fn search(&self, node: usize, q: &[f64; 3], best: &mut (u32, f64)) {
         let nd = &self.nodes[node];
@@ -180,6 +230,28 @@ mod tests {
                     let d2 = (q[0] - pts[c][0]).powi(2) + (q[1] - pts[c][1]).powi(2) + (q[2] - pts[c][2]).powi(2);
                     assert_eq!(tree.nearest_within(&q, c, d2), want);
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn balls_match_brute_force() {
+        for n in [0usize, 1, 13, 100, 3000] {
+            let pts = pseudo_points(n, n as u64 + 5);
+            let tree = NearestTree::new(&pts);
+            for (qi, q) in pseudo_points(100, 7).iter().enumerate() {
+                let r = [0.0, 1.0, 8.0, 30.0, 200.0][qi % 5];
+                let mut got = Vec::new();
+                tree.within_into(q, r, &mut got);
+                got.sort_unstable();
+                let want: Vec<u32> = (0..n as u32)
+                    .filter(|&i| {
+                        let p = pts[i as usize];
+                        let (dx, dy, dz) = (q[0] - p[0], q[1] - p[1], q[2] - p[2]);
+                        (dx * dx + dy * dy + dz * dz).sqrt() <= r
+                    })
+                    .collect();
+                assert_eq!(got, want);
             }
         }
     }
