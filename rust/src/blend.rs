@@ -27,11 +27,16 @@ pub struct NormalEquations {
     pub c: f64,
 }
 
+/// Vertices whose plane rows are added to H together (a rank-GROUP update: each H entry loaded
+/// and stored once per group, not once per vertex, which bounded the loop).
+const GROUP: usize = 4;
+
 struct Acc {
     h: Vec<f64>, // upper triangle used, row-major n_x × n_x
     g: Vec<f64>,
     c: f64,
     jac: Vec<f64>,
+    scaled: Vec<f64>,
 }
 
 impl Acc {
@@ -40,7 +45,8 @@ impl Acc {
             h: vec![0.0; n_x * n_x],
             g: vec![0.0; n_x],
             c: 0.0,
-            jac: vec![0.0; n_x],
+            jac: vec![0.0; GROUP * n_x],
+            scaled: vec![0.0; GROUP * n_x],
         }
     }
     fn add(mut self, o: Acc) -> Acc {
@@ -89,7 +95,9 @@ fn accumulate(acc: &mut Acc, chunk: &[usize], ctx: &Ctx) {
     #[rustfmt::skip]
     let Ctx { basis, k, lin, w, da, qn, v, lam, rigid, n_x } = *ctx;
     let pw_scale = 1.0 - lam;
-    for &i in chunk {
+    // jac holds the plane rows J_i of up to GROUP vertices, scaled their rows pw·J_i
+    let mut filled = 0usize;
+    for (pos, &i) in chunk.iter().enumerate() {
         let wi = w[i];
         let (d, nn, vi) = (&da[i], &qn[i], &v[i]);
         let rows = &basis[3 * i * k..3 * (i + 1) * k];
@@ -100,7 +108,7 @@ fn accumulate(acc: &mut Acc, chunk: &[usize], ctx: &Ctx) {
             lin[0][1] * nn[0] + lin[1][1] * nn[1] + lin[2][1] * nn[2],
             lin[0][2] * nn[0] + lin[1][2] * nn[1] + lin[2][2] * nn[2],
         ];
-        let jac = &mut acc.jac;
+        let jac = &mut acc.jac[filled * n_x..(filled + 1) * n_x];
         for c in 0..k {
             jac[c] = m[0] * b0[c] + m[1] * b1[c] + m[2] * b2[c];
         }
@@ -113,11 +121,13 @@ fn accumulate(acc: &mut Acc, chunk: &[usize], ctx: &Ctx) {
         let pw = pw_scale * wi;
         for a in 0..n_x {
             let s = pw * jac[a];
+            acc.scaled[filled * n_x + a] = s;
             acc.g[a] += s * ci;
-            let row = &mut acc.h[a * n_x + a..(a + 1) * n_x];
-            for (hb, jb) in row.iter_mut().zip(&jac[a..]) {
-                *hb += s * jb;
-            }
+        }
+        filled += 1;
+        if filled == GROUP || pos + 1 == chunk.len() {
+            add_rank_group(&mut acc.h, &acc.jac, &acc.scaled, filled, n_x);
+            filled = 0;
         }
         acc.c += pw * ci * ci;
         if lam > 0.0 {
@@ -160,6 +170,34 @@ fn accumulate(acc: &mut Acc, chunk: &[usize], ctx: &Ctx) {
                         acc.h[(k + s) * n_x + k + t] +=
                             lw * (r[0][s] * r[0][t] + r[1][s] * r[1][t] + r[2][s] * r[2][t]);
                     }
+                }
+            }
+        }
+    }
+}
+
+/// H[a][b] += Σ_v scaled[v][a] jac[v][b] over the `filled` vertices of a group, upper triangle.
+#[inline(always)]
+fn add_rank_group(h: &mut [f64], jac: &[f64], scaled: &[f64], filled: usize, n_x: usize) {
+    let j = |v: usize| &jac[v * n_x..(v + 1) * n_x];
+    let sc = |v: usize, a: usize| scaled[v * n_x + a];
+    if filled == GROUP {
+        let (j0, j1, j2, j3) = (j(0), j(1), j(2), j(3));
+        for a in 0..n_x {
+            let (s0, s1, s2, s3) = (sc(0, a), sc(1, a), sc(2, a), sc(3, a));
+            let row = &mut h[a * n_x + a..(a + 1) * n_x];
+            for (((hb, (x0, x1)), x2), x3) in row.iter_mut().zip(j0[a..].iter().zip(&j1[a..])).zip(&j2[a..]).zip(&j3[a..]) {
+                *hb += s0 * x0 + s1 * x1 + s2 * x2 + s3 * x3;
+            }
+        }
+    } else {
+        for v in 0..filled {
+            let jv = j(v);
+            for a in 0..n_x {
+                let s = sc(v, a);
+                let row = &mut h[a * n_x + a..(a + 1) * n_x];
+                for (hb, jb) in row.iter_mut().zip(&jv[a..]) {
+                    *hb += s * jb;
                 }
             }
         }
