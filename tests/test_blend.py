@@ -102,6 +102,13 @@ def test_bad_input_is_a_value_error():
     bad[3, 1] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         _core.blend_normal_equations(basis.flat, lin, w, bad, qn, v, 0.3, True)
+    for where, value in [(0, np.inf), (7, -np.inf), (-1, np.nan), (-3, np.inf)]:  # in the 8-lane body / tail
+        flat = basis.flat.copy()
+        flat.reshape(-1)[where] = value
+        with pytest.raises(ValueError, match="NaN or infinite"):
+            _core.blend_normal_equations(flat, lin, w, da, qn, v, 0.3, True)
+    huge = basis.flat * 1e300  # finite, however large
+    _core.blend_normal_equations(huge, lin, w, da, qn, v, 0.3, True)
     with pytest.raises(ValueError, match="lam"):
         _core.blend_normal_equations(basis.flat, lin, w, da, qn, v, 1.0, True)
     with pytest.raises(ValueError, match="contiguous"):

@@ -4,7 +4,7 @@ use numpy::ndarray::{Array1, Array2};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::util::{run, value_err};
+use super::util::{all_finite, run, value_err};
 use crate::blend;
 
 fn rows3<'a>(a: &'a PyReadonlyArray2<'_, f64>, n: usize, name: &str) -> PyResult<&'a [[f64; 3]]> {
@@ -43,7 +43,7 @@ fn blend_normal_equations<'py>(
     if basis.shape()[0] != 3 * n || k == 0 {
         return Err(value_err(format!("basis must have shape (3 x {n}, K >= 1), got {:?}", basis.shape())));
     }
-    if ws.iter().any(|x| !x.is_finite()) || b.iter().any(|x| !x.is_finite()) {
+    if !all_finite(ws) || !all_finite(b) {
         return Err(value_err("w or basis contains NaN or infinite values"));
     }
     let l = rows3(&lin, 3, "lin")?;

@@ -30,6 +30,21 @@ pub fn run<R: Send, F: FnOnce() -> R + Send>(py: Python<'_>, what: &str, f: F) -
     })
 }
 
+/// True when every number of `xs` is finite. x − x is 0 for a finite x and NaN for ±inf or NaN,
+/// so one sum per lane tells; eight lanes let it vectorise (a per-element test with early exit
+/// does not: on the expression fit's 7 MB shape basis it took ~0.5 ms per call).
+pub fn all_finite(xs: &[f64]) -> bool {
+    let mut acc = [0.0f64; 8];
+    let chunks = xs.chunks_exact(8);
+    let tail = chunks.remainder();
+    for c in chunks {
+        for l in 0..8 {
+            acc[l] += c[l] - c[l];
+        }
+    }
+    acc.iter().all(|a| *a == 0.0) && tail.iter().all(|x| x.is_finite())
+}
+
 /// A `ValueError` with a one-line message.
 pub fn value_err(msg: impl Into<String>) -> PyErr {
     PyValueError::new_err(msg.into())
