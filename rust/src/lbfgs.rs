@@ -68,11 +68,35 @@ pub struct LbfgsReport {
 const PAR_MIN: usize = 16_384;
 const CHUNK: usize = 32_768;
 
+/// Σ f(i) for i in 0..n, as four interleaved partial sums (i mod 4) added at the end. A plain
+/// float sum is one chain of dependent additions (one add's latency per element, and no SIMD,
+/// floats not being reassociated); four chains run ~3x faster on the shape fit's 10^5-long
+/// vectors. The order is fixed, so the result is deterministic.
+#[inline(always)]
+fn sum4(n: usize, mut f: impl FnMut(usize) -> f64) -> f64 {
+    let mut acc = [0.0f64; 4];
+    let m = n - n % 4;
+    let mut i = 0;
+    while i < m {
+        acc[0] += f(i);
+        acc[1] += f(i + 1);
+        acc[2] += f(i + 2);
+        acc[3] += f(i + 3);
+        i += 4;
+    }
+    let mut tail = 0.0;
+    for j in m..n {
+        tail += f(j);
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let kernel = |x: &[f64], y: &[f64]| sum4(x.len().min(y.len()), |i| x[i] * y[i]);
     if a.len() >= PAR_MIN {
-        a.par_chunks(CHUNK).zip(b.par_chunks(CHUNK)).map(|(x, y)| x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>()).sum()
+        a.par_chunks(CHUNK).zip(b.par_chunks(CHUNK)).map(|(x, y)| kernel(x, y)).sum()
     } else {
-        a.iter().zip(b).map(|(p, q)| p * q).sum()
+        kernel(a, b)
     }
 }
 
@@ -82,10 +106,13 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 fn axpy_dot(s: f64, x: &[f64], y: &mut [f64], z: Option<&[f64]>) -> f64 {
     fn kernel(s: f64, x: &[f64], y: &mut [f64], z: Option<&[f64]>) -> f64 {
         match z {
-            Some(z) => y.iter_mut().zip(x).zip(z).map(|((p, q), r)| {
-                *p += s * q;
-                *p * r
-            }).sum(),
+            Some(z) => {
+                let n = y.len().min(x.len()).min(z.len());
+                sum4(n, |i| {
+                    y[i] += s * x[i];
+                    y[i] * z[i]
+                })
+            }
             None => {
                 y.iter_mut().zip(x).for_each(|(p, q)| *p += s * q);
                 0.0
@@ -153,7 +180,7 @@ fn chunked<const R: usize, const W: usize, O: Send + Copy + Default + std::ops::
 fn copy_dot(g: &[f64], s: &[f64], d: &mut [f64]) -> f64 {
     chunked([g, s], [d], |[g, s], [d]| {
         d.copy_from_slice(g);
-        d.iter().zip(s).map(|(a, b)| a * b).sum::<f64>()
+        sum4(d.len().min(s.len()), |i| d[i] * s[i])
     })
 }
 
@@ -161,14 +188,11 @@ fn copy_dot(g: &[f64], s: &[f64], d: &mut [f64]) -> f64 {
 /// the sign flip and the directional derivative).
 fn axpy_neg_dot(a: f64, x: &[f64], y: &mut [f64], g: &[f64]) -> f64 {
     chunked([x, g], [y], |[x, g], [y]| {
-        y.iter_mut()
-            .zip(x)
-            .zip(g)
-            .map(|((p, q), r)| {
-                *p = -(*p + a * q);
-                *p * r
-            })
-            .sum::<f64>()
+        let n = y.len().min(x.len()).min(g.len());
+        sum4(n, |i| {
+            y[i] = -(y[i] + a * x[i]);
+            y[i] * g[i]
+        })
     })
 }
 
