@@ -1,6 +1,7 @@
-//! 3-D KD-tree over a fixed point set (kiddo's `ImmutableKdTree`): built once, then k-nearest and
-//! radius queries answered in parallel over the query points (rayon, facecorr's pool when called
-//! through the bindings).
+//! 3-D KD-tree over a fixed point set: kiddo's `ImmutableKdTree` for k-nearest queries (k > 1),
+//! facecorr's own [`NearestTree`] for the single nearest point and radius queries, each built on
+//! its first use (a tree queried one way pays one build). Queries are answered in parallel over
+//! the query points (rayon, facecorr's pool when called through the bindings).
 //!
 //! Semantics follow scipy's `cKDTree`: `knn` returns, per query, the `k` nearest points sorted by
 //! distance with distances strictly below `upper_bound`; missing neighbours have distance `inf`
@@ -12,6 +13,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use crate::nearest::NearestTree;
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
+use std::sync::OnceLock;
 
 /// Scratch space of one ball query: its indices, and the bitmap that orders them.
 #[derive(Default)]
@@ -22,10 +24,12 @@ struct BallBuffers {
 
 /// An immutable KD-tree over `n` points in 3-D (f64 coordinates, millimetres by convention).
 pub struct KdTree3 {
-    tree: ImmutableKdTree<f64, 3>,
+    /// kiddo's tree (k-nearest queries), and facecorr's own (single-nearest and ball queries);
+    /// each built on its first use, so a tree queried one way pays one build.
+    tree: OnceLock<ImmutableKdTree<f64, 3>>,
     /// The single-nearest queries (the ICPs' and closest-point passes' one query): 1.2-1.5x
     /// kiddo's on scan-like data (`crate::nearest`).
-    near: NearestTree,
+    near: OnceLock<NearestTree>,
     points: Vec<[f64; 3]>,
 }
 
@@ -35,14 +39,20 @@ impl KdTree3 {
         if points.len() >= u32::MAX as usize {
             return Err(format!("too many points for the KD-tree: {}", points.len()));
         }
-        let tree = ImmutableKdTree::new_from_slice(&points).map_err(|e| e.to_string())?;
-        let near = NearestTree::new(&points);
-        Ok(Self { tree, near, points })
+        Ok(Self { tree: OnceLock::new(), near: OnceLock::new(), points })
+    }
+
+    fn kd(&self) -> &ImmutableKdTree<f64, 3> {
+        self.tree.get_or_init(|| ImmutableKdTree::new_from_slice(&self.points).expect("kiddo tree of finite points"))
+    }
+
+    fn nt(&self) -> &NearestTree {
+        self.near.get_or_init(|| NearestTree::new(&self.points))
     }
 
     /// The kiddo tree underneath (the benches compare the single-nearest search with it).
     pub fn kiddo(&self) -> &ImmutableKdTree<f64, 3> {
-        &self.tree
+        self.kd()
     }
 
     /// Number of points in the tree.
@@ -63,7 +73,7 @@ impl KdTree3 {
     /// The nearest point of one query: (index, distance). The tree must not be empty.
     #[inline]
     pub fn nearest(&self, q: &[f64; 3]) -> (usize, f64) {
-        let (i, d2) = self.near.nearest(q);
+        let (i, d2) = self.nt().nearest(q);
         (i, d2.sqrt())
     }
 
@@ -86,14 +96,14 @@ impl KdTree3 {
             return;
         }
         let res = if upper_bound.is_finite() {
-            self.tree
+            self.kd()
                 .query(q)
                 .nearest_n::<SquaredEuclidean<f64>>(kk)
                 .within(upper_bound * upper_bound)
                 .exclusive_boundaries()
                 .execute()
         } else {
-            self.tree.query(q).nearest_n::<SquaredEuclidean<f64>>(kk).execute()
+            self.kd().query(q).nearest_n::<SquaredEuclidean<f64>>(kk).execute()
         };
         let mut j = 0;
         for r in res.into_iter() {
@@ -109,6 +119,12 @@ impl KdTree3 {
 
     /// k-nearest neighbours of every query point, in parallel. Returns row-major `(Q, k)` arrays.
     pub fn knn(&self, queries: &[[f64; 3]], k: usize, upper_bound: f64) -> (Vec<f64>, Vec<u64>) {
+        // the tree the queries use, built before the parallel loop rather than inside it
+        if k == 1 {
+            self.nt();
+        } else if k > 1 {
+            self.kd();
+        }
         let mut dist = vec![0.0; queries.len() * k];
         let mut idx = vec![0u64; queries.len() * k];
         if k == 0 {
@@ -128,6 +144,7 @@ impl KdTree3 {
     /// hint), found with far less backtracking when the query lies off the surface. Returns
     /// (dist (Q,), idx (Q,)).
     pub fn nearest_hinted(&self, queries: &[[f64; 3]], hints: &[u64]) -> (Vec<f64>, Vec<u64>) {
+        self.nt();
         assert_eq!(queries.len(), hints.len(), "one hint per query");
         let n = self.points.len();
         let mut dist = vec![f64::INFINITY; queries.len()];
@@ -143,9 +160,9 @@ impl KdTree3 {
                 let (j, e2) = if (h as usize) < n {
                     let p = &self.points[h as usize];
                     let (dx, dy, dz) = (q[0] - p[0], q[1] - p[1], q[2] - p[2]);
-                    self.near.nearest_within(q, h as usize, dx * dx + dy * dy + dz * dz)
+                    self.nt().nearest_within(q, h as usize, dx * dx + dy * dy + dz * dz)
                 } else {
-                    self.near.nearest(q)
+                    self.nt().nearest(q)
                 };
                 let e = e2.sqrt();
                 *d = e;
@@ -169,7 +186,7 @@ impl KdTree3 {
         if r < 0.0 {
             return;
         }
-        self.near.within_into(q, r, &mut buf.ids);
+        self.nt().within_into(q, r, &mut buf.ids);
         let ids = &mut buf.ids;
         if ids.len() < 64 {
             ids.sort_unstable();
@@ -200,6 +217,7 @@ impl KdTree3 {
 
     /// Indices of all points with distance `<= r` of each query (sorted ascending), in parallel.
     pub fn within(&self, queries: &[[f64; 3]], r: f64) -> Vec<Vec<u64>> {
+        self.nt();
         queries.par_iter().with_min_len(16).map(|q| self.within_one(q, r)).collect()
     }
 
@@ -210,6 +228,7 @@ impl KdTree3 {
     /// Without materialising the balls: the (point, neighbour) pairs of a 56k-vertex scan at
     /// 25 mm are ~10^6-10^7.
     pub fn ball_sums(&self, queries: &[[f64; 3]], r: f64, values: &[f64], c: usize) -> (Vec<u64>, Vec<f64>) {
+        self.nt();
         assert_eq!(values.len(), self.points.len() * c, "values must have one row per point");
         let mut counts = vec![0u64; queries.len()];
         let mut sums = vec![0.0f64; queries.len() * c];
