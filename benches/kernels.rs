@@ -8,17 +8,10 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 
 use _core::fingerprint::fingerprint;
-use _core::fixtures::{faces_u32, grid};
+use _core::fixtures::{faces_u32, grid, lcg};
 use _core::geodesic::{GeodesicSolver, Method};
 use _core::kdtree::KdTree3;
 
-fn lcg(seed: u64) -> impl FnMut() -> f64 {
-    let mut s = seed;
-    move || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((s >> 11) as f64) / ((1u64 << 53) as f64)
-    }
-}
 
 /// A 224 x 224 grid (50176 vertices, spacing 1 mm) bent into a smooth bump, like a face.
 fn wavy_surface() -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {

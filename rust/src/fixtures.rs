@@ -27,3 +27,13 @@ pub fn grid(nx: usize, ny: usize, mut vertex: impl FnMut(usize, usize) -> Vec3) 
 pub fn faces_u32(f: Vec<Face>) -> Vec<[u32; 3]> {
     f.into_iter().map(|t| t.map(|i| i as u32)).collect()
 }
+
+/// A reproducible stream of numbers in [0, 1) (64-bit LCG, Knuth's MMIX constants): test and
+/// bench inputs without a random-number crate.
+pub fn lcg(seed: u64) -> impl FnMut() -> f64 {
+    let mut s = seed;
+    move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((s >> 11) as f64) / ((1u64 << 53) as f64)
+    }
+}

@@ -260,11 +260,7 @@ mod tests {
     use super::*;
 
     fn lcg_points(n: usize, seed: u64) -> Vec<[f64; 3]> {
-        let mut s = seed;
-        let mut next = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 11) as f64) / ((1u64 << 53) as f64)
-        };
+        let mut next = crate::fixtures::lcg(seed);
         (0..n).map(|_| [next(), next(), next()]).collect()
     }
 

@@ -216,11 +216,8 @@ mod tests {
     use super::*;
 
     fn pseudo_points(n: usize, seed: u64) -> Vec<[f64; 3]> {
-        let mut s = seed;
-        let mut next = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 100.0 - 50.0
-        };
+        let mut r = crate::fixtures::lcg(seed);
+        let mut next = || r() * 100.0 - 50.0;
         (0..n).map(|_| [next(), next(), next() * 0.2]).collect()
     }
 
