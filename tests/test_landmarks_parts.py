@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.stats import multivariate_normal
 
 from facecorr.evaluation.landmarks import landmark_table, markdown
@@ -43,6 +45,20 @@ def test_voxel_subsample_one_per_cell():
         same = ids[(np.floor(pts[ids] / 4.0) == c).all(1)]
         off = np.linalg.norm(pts[same] - (c + 0.5) * 4.0, axis=1)
         assert v == same[np.argmin(off)]
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(1, 400), st.sampled_from([0.25, 0.5, 1.0, 2.0]), st.integers(0, 2**31))
+def test_voxel_subsample_is_the_lexsort_reference(n, spacing, seed):
+    """The hashed grouping picks what the lexsort reference picks, ties (points on a lattice: equal
+    distances to the cell centre, duplicates, -0.0) to the first of ``ids``."""
+    from facecorr.geometry.spatial import _voxel_subsample_reference
+
+    rng = np.random.default_rng(seed)
+    pts = rng.integers(-4, 4, size=(n, 3)).astype(float) * rng.choice([0.25, 0.5, 1.0])
+    pts[rng.random(n) < 0.1] *= -0.0  # some -0.0 coordinates
+    ids = rng.permutation(n)[: rng.integers(1, n + 1)]
+    np.testing.assert_array_equal(voxel_subsample(pts, ids, spacing), _voxel_subsample_reference(pts, ids, spacing))
 
 
 def test_two_side_init_splits_left_right():

@@ -222,18 +222,19 @@ impl KdTree3 {
     }
 
     /// Ball sums: for each query, the number of points within distance `<= r` (as `within`) and
-    /// the sums of their rows of `values` (row-major, `n` rows of `c` columns), added in
-    /// ascending point order starting from 0 (so a sum is bitwise the one of a CSR
-    /// ball-membership matrix times `values`). Returns (counts (Q,), sums (Q * c)).
-    /// Without materialising the balls: the (point, neighbour) pairs of a 56k-vertex scan at
-    /// 25 mm are ~10^6-10^7.
+    /// the sums of their rows of `values` (row-major, `n` rows of `c` columns). Returns (counts
+    /// (Q,), sums (Q * c)). Without listing the balls (the (point, neighbour) pairs of a
+    /// 56k-vertex scan at 25 mm are ~10^6-10^7): a tree box wholly inside a ball adds its
+    /// precomputed sum ([`NearestTree::ball_sum`]), so a sum equals the one in point order up to
+    /// rounding.
     pub fn ball_sums(&self, queries: &[[f64; 3]], r: f64, values: &[f64], c: usize) -> (Vec<u64>, Vec<f64>) {
-        self.nt();
         assert_eq!(values.len(), self.points.len() * c, "values must have one row per point");
+        let nt = self.nt();
+        let node_sums = nt.node_sums(values, c);
         let mut counts = vec![0u64; queries.len()];
         let mut sums = vec![0.0f64; queries.len() * c];
         if c == 0 {
-            counts.par_iter_mut().zip(queries.par_iter()).for_each(|(n, q)| *n = self.within_one(q, r).len() as u64);
+            counts.par_iter_mut().zip(queries.par_iter()).with_min_len(16).for_each(|(n, q)| *n = nt.ball_sum(q, r, &node_sums, &mut []));
             return (counts, sums);
         }
         counts
@@ -241,16 +242,7 @@ impl KdTree3 {
             .zip(sums.par_chunks_mut(c))
             .zip(queries.par_iter())
             .with_min_len(16)
-            .for_each_init(BallBuffers::default, |buf, ((n, s), q)| {
-                self.within_sorted(q, r, buf);
-                *n = buf.ids.len() as u64;
-                for &j in buf.ids.iter() {
-                    let row = &values[j as usize * c..(j as usize + 1) * c];
-                    for (acc, v) in s.iter_mut().zip(row) {
-                        *acc += *v;
-                    }
-                }
-            });
+            .for_each(|((n, s), q)| *n = nt.ball_sum(q, r, &node_sums, s));
         (counts, sums)
     }
 }
@@ -324,21 +316,26 @@ mod tests {
         let t = KdTree3::new(p.clone()).unwrap();
         let c = 4;
         let vals: Vec<f64> = p.iter().flat_map(|x| [x[0], x[1] * x[2], 1.0, x[0] - x[2]]).collect();
-        let balls = t.within(&q, 0.2);
-        let (n, s) = t.ball_sums(&q, 0.2, &vals, c);
-        for (i, b) in balls.iter().enumerate() {
-            assert_eq!(n[i] as usize, b.len());
-            for k in 0..c {
-                let mut want = 0.0;
-                for &j in b {
-                    want += vals[j as usize * c + k];
+        // small balls (leaves tested point by point) to large ones (whole boxes taken)
+        for r in [0.0, 0.05, 0.2, 0.6, 5.0] {
+            let balls = t.within(&q, r);
+            let (n, s) = t.ball_sums(&q, r, &vals, c);
+            for (i, b) in balls.iter().enumerate() {
+                assert_eq!(n[i] as usize, b.len());
+                for k in 0..c {
+                    let (mut want, mut mag) = (0.0f64, 0.0f64);
+                    for &j in b {
+                        want += vals[j as usize * c + k];
+                        mag += vals[j as usize * c + k].abs();
+                    }
+                    // the same sum in another order: rounding only
+                    assert!((s[i * c + k] - want).abs() <= 1e-13 * mag, "r {r} query {i} column {k}");
                 }
-                assert_eq!(s[i * c + k].to_bits(), want.to_bits());
             }
+            let (n0, s0) = t.ball_sums(&q, r, &[], 0);
+            assert_eq!(n0, n);
+            assert!(s0.is_empty());
         }
-        let (n0, s0) = t.ball_sums(&q, 0.2, &[], 0);
-        assert_eq!(n0, n);
-        assert!(s0.is_empty());
     }
 
     #[test]

@@ -38,6 +38,16 @@ impl Node {
     }
 }
 
+/// Per-node sums of a set of values over a [`NearestTree`]'s points ([`NearestTree::node_sums`]).
+pub struct NodeSums {
+    c: usize,
+    /// The values' rows in the tree's leaf order.
+    rows: Vec<f64>,
+    /// Per node, the sum of its points' rows (`c` each), and their number.
+    sums: Vec<f64>,
+    counts: Vec<u32>,
+}
+
 /// The tree (see the module docs). Built once per point set; queries are `&self`.
 pub struct NearestTree {
     nodes: Vec<Node>,
@@ -166,6 +176,87 @@ impl NearestTree {
                 self.collect(c, q, r, out);
             }
         }
+    }
+
+    /// The sums of `values` (row-major, one row of `c` per point, input order) over every node's
+    /// points, for [`ball_sum`](Self::ball_sum).
+    pub fn node_sums(&self, values: &[f64], c: usize) -> NodeSums {
+        assert_eq!(values.len(), self.len() * c, "values must have one row per point");
+        let mut rows = Vec::with_capacity(values.len()); // in leaf order: a leaf's rows contiguous
+        for &i in &self.ids {
+            rows.extend_from_slice(&values[i as usize * c..(i as usize + 1) * c]);
+        }
+        let mut sums = vec![0.0; self.nodes.len() * c];
+        let mut counts = vec![0u32; self.nodes.len()];
+        // children come after their parent in `nodes`: one pass from the back fills both
+        for node in (0..self.nodes.len()).rev() {
+            let nd = self.nodes[node];
+            let (head, tail) = sums.split_at_mut((node + 1) * c);
+            let acc = &mut head[node * c..];
+            if nd.end != u32::MAX {
+                for k in nd.start as usize..nd.end as usize {
+                    for (a, v) in acc.iter_mut().zip(&rows[k * c..(k + 1) * c]) {
+                        *a += *v;
+                    }
+                }
+                counts[node] = nd.end - nd.start;
+            } else {
+                let l = nd.start as usize;
+                let off = (l - node - 1) * c;
+                for j in 0..c {
+                    acc[j] = tail[off + j] + tail[off + c + j];
+                }
+                counts[node] = counts[l] + counts[l + 1];
+            }
+        }
+        NodeSums { c, rows, sums, counts }
+    }
+
+    /// The number of points at distance `<= r` of `q` (as [`within_into`](Self::within_into)),
+    /// and the sum of their rows of the `sums`' values added to `out` (`c` entries). A box wholly
+    /// inside the ball adds its node's sum, so the order of the additions is the tree's, not the
+    /// points': equal to a sum in index order up to rounding (~1e-16 relative per addition).
+    pub fn ball_sum(&self, q: &[f64; 3], r: f64, sums: &NodeSums, out: &mut [f64]) -> u64 {
+        if self.ids.is_empty() || r < 0.0 || self.nodes[0].box_d2(q).sqrt() > r {
+            return 0;
+        }
+        self.sum_node(0, q, r, sums, out)
+    }
+
+    fn sum_node(&self, node: usize, q: &[f64; 3], r: f64, sums: &NodeSums, out: &mut [f64]) -> u64 {
+        let nd = &self.nodes[node];
+        let c = sums.c;
+        let mut far2 = 0.0;
+        for d in 0..3 {
+            let e = (q[d] - nd.lo[d]).abs().max((nd.hi[d] - q[d]).abs());
+            far2 += e * e;
+        }
+        if far2.sqrt() <= r {
+            for (a, v) in out.iter_mut().zip(&sums.sums[node * c..(node + 1) * c]) {
+                *a += *v;
+            }
+            return sums.counts[node] as u64;
+        }
+        if nd.end != u32::MAX {
+            let mut n = 0;
+            for k in nd.start as usize..nd.end as usize {
+                let (dx, dy, dz) = (q[0] - self.xs[k], q[1] - self.ys[k], q[2] - self.zs[k]);
+                if (dx * dx + dy * dy + dz * dz).sqrt() <= r {
+                    for (a, v) in out.iter_mut().zip(&sums.rows[k * c..(k + 1) * c]) {
+                        *a += *v;
+                    }
+                    n += 1;
+                }
+            }
+            return n;
+        }
+        let mut n = 0;
+        for ch in [nd.start as usize, nd.start as usize + 1] {
+            if self.nodes[ch].box_d2(q).sqrt() <= r {
+                n += self.sum_node(ch, q, r, sums, out);
+            }
+        }
+        n
     }
 
     /// The range of reordered points under an inner node (its leftmost and rightmost leaves').

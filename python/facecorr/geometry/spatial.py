@@ -127,8 +127,8 @@ class KDTree:
     def ball_sums(self, q, r: float, values):
         """Per query, the number of tree points within distance ``r`` (inclusive, as
         :meth:`query_ball_point`) and the sums of their rows of ``values``, without listing the
-        balls: the product of the ball-membership matrix with ``values`` (bitwise: each sum is
-        added in ascending point order from 0, as scipy's CSR product does).
+        balls: the product of the ball-membership matrix with ``values``, up to rounding (a tree
+        box wholly inside a ball adds its precomputed sum; ~1e-16 relative per addition).
 
         Parameters
         ----------
@@ -178,8 +178,30 @@ def mhd(p, f_vertices, tree: "KDTree | None" = None) -> float:
 
 def voxel_subsample(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.ndarray:
     """Subset of ``ids`` with at most one vertex per cube of side ``spacing`` (mm): the vertex
-    nearest to its cell's centre. O(n); keeps the candidate sets evenly spread whatever the scan's
-    resolution."""
+    nearest to its cell's centre (equally near: the first in ``ids``), returned sorted. O(n) (cells
+    grouped by hashing, ``_core.equal_rows``: on a 56k-vertex scan 22 -> 5 ms for the lexsort of
+    :func:`_voxel_subsample_reference`, the same subset); keeps the candidate sets evenly spread
+    whatever the scan's resolution."""
+    from .. import _core
+
+    ids = np.asarray(ids, dtype=np.int64)
+    if len(ids) == 0 or spacing <= 0:
+        return ids
+    p = points[ids]
+    cell = np.floor(p / spacing)
+    off = np.linalg.norm(p - (cell + 0.5) * spacing, axis=1)
+    _, group = _core.equal_rows(np.ascontiguousarray(cell))
+    n_groups = int(group.max()) + 1
+    best = np.full(n_groups, np.inf)
+    np.minimum.at(best, group, off)
+    pos = np.flatnonzero(off == best[group])  # the nearest of each cell (ties: all of them)
+    first = np.full(n_groups, len(ids))
+    np.minimum.at(first, group[pos], pos)  # ties: the first
+    return np.sort(ids[first])
+
+
+def _voxel_subsample_reference(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.ndarray:
+    """:func:`voxel_subsample` by a lexsort of (cell, distance to its centre): the reference."""
     ids = np.asarray(ids, dtype=np.int64)
     if len(ids) == 0 or spacing <= 0:
         return ids

@@ -42,7 +42,7 @@ def ball_protrusion(points: np.ndarray, normals: np.ndarray, radius: float, tree
     # Ball sums of (x, y, z, x², xy, xz, y², yz, z²), summed in the KD-tree's radius search
     # without listing the ~10⁶ (point, neighbour) pairs (a raw 56k-vertex scan: gathering their
     # outer products 1.05 s, a scipy CSR product with the ball-membership matrix 0.18 s plus
-    # its import; bitwise the CSR product's sums). Centred first, so that E[x²] − E[x]² loses
+    # its import; the CSR product's sums up to rounding). Centred first, so that E[x²] − E[x]² loses
     # nothing wherever the points sit.
     x, y, z = (points - points.mean(axis=0)).T
     count, sums = tree.ball_sums(points, float(radius), np.stack([x, y, z, x * x, x * y, x * z, y * y, y * z, z * z],
