@@ -283,3 +283,36 @@ def test_surface_batch_icp_agrees_with_batch_icp():
     np.testing.assert_allclose(b[1], a[1], atol=1e-6)
     np.testing.assert_allclose(b[2], a[2], atol=1e-5)
     assert np.argmin(a[0]) == np.argmin(b[0])
+
+
+def test_pose_scores_in_two_rounds_continue_only_the_contenders():
+    """``start._pose_scores`` with ``first_iters``: every pose is scored after that many
+    iterations, and the poses within ``margin`` of the best (after the caller's ``offsets``) go
+    on to ``iters``, resumed. Its reference: the one-round scores for those that go on (bitwise:
+    a resumed ICP is one run), the first round's own scores for the others; a margin of 0
+    continues the best pose alone, offsets change which."""
+    from facecorr.landmarks.pose import surface_icp
+    from facecorr.landmarks.start import _pose_scores
+
+    rot, mesh = _scene_mesh(1)
+    tip = np.array([0.0, 0.0, 25.0])
+    starts = normal_sweep_starts(tip, np.array([0, 0, 1.0]), tip @ rot.T + [5.0, -20.0, 40.0], rot[:, 2], 8)
+    pts = _bumpy_face()[::9]
+    poses = [(r, t, s) for (r, t), s in zip(starts, [1.0, 0.9] * 4)]
+
+    def reference(n_iter):
+        return [surface_icp(s * pts, mesh.surface, [(r, t)], iters=n_iter)[0][2] for r, t, s in poses]
+
+    full, first = np.array(reference(10)), np.array(reference(3))
+    assert first.max() - first.min() > 1.0  # the sweep has contenders and hopeless poses
+    np.testing.assert_array_equal(_pose_scores(pts, mesh, poses, "trimmed", 10), full)
+    np.testing.assert_array_equal(_pose_scores(pts, mesh, poses, "trimmed", 10, first_iters=3), full)
+    np.testing.assert_array_equal(_pose_scores(pts, mesh, poses, "truncated", 10, first_iters=3),
+                                  _pose_scores(pts, mesh, poses, "truncated", 10))
+    for margin, offsets in ((0.5, None), (0.0, None), (0.0, -10.0 * (np.arange(8) == 5))):
+        ranked = first + (0 if offsets is None else offsets)
+        go_on = ranked <= ranked.min() + margin
+        got = _pose_scores(pts, mesh, poses, "trimmed", 10, offsets=offsets, first_iters=3, margin=margin)
+        np.testing.assert_array_equal(np.where(go_on, full, first), got)
+        assert go_on.sum() < len(poses)
+    assert go_on[5] and go_on.sum() == 1  # the offset made pose 5 the best of the first round

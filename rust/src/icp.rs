@@ -30,6 +30,9 @@ pub struct IcpOutcome {
     pub dist: Vec<f64>,
     /// Pose updates taken.
     pub iterations: usize,
+    /// The trimmed RMS before the last pose update (`inf` if none): with the final pose, what
+    /// [`trimmed_icp`] needs to go on exactly as if it had not stopped (its `prev` argument).
+    pub prev: f64,
 }
 
 fn apply(pose: &Pose, p: &Vec3) -> Vec3 {
@@ -124,7 +127,11 @@ fn trimmed(d: &[f64], order: &mut [usize], n_keep: usize) -> f64 {
 /// Trimmed point-to-plane ICP of `points` onto the `tree`'s points (unit `normals`, one per tree
 /// point) from `start`, at most `iters` pose updates; `keep` in (0, 1] is the share of points
 /// matched, `tol` the relative RMS improvement below which it stops (see the module docs).
-pub fn trimmed_icp(points: &[Vec3], tree: &KdTree3, normals: &[Vec3], start: Pose, iters: usize, keep: f64, tol: f64) -> IcpOutcome {
+/// `prev`: the trimmed RMS before the step that led to `start` (`inf` for a fresh start; an
+/// earlier run's [`IcpOutcome::prev`] to resume it: n + m iterations as one run of n and one of
+/// m from its pose, bitwise).
+pub fn trimmed_icp(points: &[Vec3], tree: &KdTree3, normals: &[Vec3], start: Pose, iters: usize, keep: f64, tol: f64,
+                   prev: f64) -> IcpOutcome {
     let np = points.len();
     assert!(np > 0, "no points to align");
     assert_eq!(normals.len(), tree.len(), "one normal per scan vertex");
@@ -133,7 +140,7 @@ pub fn trimmed_icp(points: &[Vec3], tree: &KdTree3, normals: &[Vec3], start: Pos
     let mut pose = start;
     let mut hint = vec![u64::MAX; np];
     let mut order = vec![0usize; np];
-    let mut prev = f64::INFINITY;
+    let mut prev = prev;
     let mut iterations = 0;
     let mut last: Option<(Vec<f64>, f64)> = None;
     let mut moved: Vec<Vec3> = Vec::with_capacity(np);
@@ -185,12 +192,19 @@ pub fn trimmed_icp(points: &[Vec3], tree: &KdTree3, normals: &[Vec3], start: Pos
             (d, rms)
         }
     };
-    IcpOutcome { pose, rms, dist, iterations }
+    IcpOutcome { pose, rms, dist, iterations, prev }
 }
 
-/// [`trimmed_icp`] from every start, the starts in parallel.
-pub fn trimmed_icp_many(points: &[Vec3], tree: &KdTree3, normals: &[Vec3], starts: &[Pose], iters: usize, keep: f64, tol: f64) -> Vec<IcpOutcome> {
-    starts.par_iter().map(|&s| trimmed_icp(points, tree, normals, s, iters, keep, tol)).collect()
+/// [`trimmed_icp`] from every start, the starts in parallel; `prevs` one per start (empty: all
+/// fresh starts).
+pub fn trimmed_icp_many(points: &[Vec3], tree: &KdTree3, normals: &[Vec3], starts: &[Pose], iters: usize, keep: f64, tol: f64,
+                        prevs: &[f64]) -> Vec<IcpOutcome> {
+    assert!(prevs.is_empty() || prevs.len() == starts.len(), "one prev per start");
+    starts
+        .par_iter()
+        .enumerate()
+        .map(|(k, &s)| trimmed_icp(points, tree, normals, s, iters, keep, tol, prevs.get(k).copied().unwrap_or(f64::INFINITY)))
+        .collect()
 }
 
 #[cfg(test)]
@@ -245,15 +259,34 @@ mod tests {
             })
             .collect();
         let eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        let out = trimmed_icp(&moved, &tree, &normals, (eye, [0.0; 3]), 60, 0.8, 1e-9);
+        let out = trimmed_icp(&moved, &tree, &normals, (eye, [0.0; 3]), 60, 0.8, 1e-9, f64::INFINITY);
         assert!(out.rms < 0.05, "rms {}", out.rms);
         for (p, q) in moved.iter().zip(&pts) {
             let d = sub(apply(&out.pose, p), *q);
             assert!(dot(d, d).sqrt() < 0.3, "{:?}", d);
         }
         assert_eq!(out.dist.len(), moved.len());
-        let many = trimmed_icp_many(&moved, &tree, &normals, &[(eye, [0.0; 3]), (eye, [0.0; 3])], 60, 0.8, 1e-9);
+        let many = trimmed_icp_many(&moved, &tree, &normals, &[(eye, [0.0; 3]), (eye, [0.0; 3])], 60, 0.8, 1e-9, &[]);
         assert_eq!(many[0].pose, out.pose);
         assert_eq!(many[1].rms, out.rms);
+    }
+
+    #[test]
+    fn resumed_runs_are_one_run() {
+        // n + m iterations as one run, or as n then m from the first run's pose and prev: the same
+        // pose, RMS and distances bitwise, whether the run stops early by `tol` or not
+        let f = |x: f64, y: f64| 6.0 * (-((x - 30.0).powi(2) + (y - 28.0).powi(2)) / 80.0).exp() + 0.02 * x * y / 10.0;
+        let (scan, normals) = grid_surface(91, 0.6, f);
+        let tree = KdTree3::new(scan.clone()).unwrap();
+        let pts: Vec<Vec3> = scan.iter().step_by(23).map(|p| [p[0] + 1.5, p[1] - 1.0, p[2] + 0.7]).collect();
+        let start = (rotation_from_vector([0.05, -0.04, 0.08]), [0.0; 3]);
+        for (tol, n, m) in [(-f64::INFINITY, 3, 7), (1e-5, 3, 7), (1e-2, 1, 9), (1e-2, 2, 8), (1e-5, 0, 6)] {
+            let one = trimmed_icp(&pts, &tree, &normals, start, n + m, 0.8, tol, f64::INFINITY);
+            let a = trimmed_icp(&pts, &tree, &normals, start, n, 0.8, tol, f64::INFINITY);
+            let b = trimmed_icp(&pts, &tree, &normals, a.pose, m, 0.8, tol, a.prev);
+            assert_eq!(b.pose, one.pose, "tol {tol} n {n}");
+            assert_eq!((b.rms, &b.dist, b.prev), (one.rms, &one.dist, one.prev));
+            assert_eq!(a.iterations + b.iterations, one.iterations);
+        }
     }
 }

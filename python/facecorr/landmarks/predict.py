@@ -100,6 +100,10 @@ class PredictOptions:
     refine_all_poses: bool = True     # the upper-face ICP refines every pose before the scores (False: the winner)
     pose_coarse_iters: int = 8        # ICP iterations of the coarse ranking of the sweep starts
     pose_score_iters: int = 10        # ICP iterations of the whole-template score from each pose
+    # The score in two rounds (start._pose_scores): every pose after this many iterations, then only
+    # those within ``pose_score_margin`` mm of the best go on to ``pose_score_iters`` (0: all go on).
+    pose_score_first_iters: int = 3
+    pose_score_margin: float = 2.5
     pose_score_spacing: float = 4.0   # the whole-template score's points: the template subsampled at this spacing, mm
     # >0: the pose search fits only the upper-face points within this many mm of the nose tip
     # (start.pose_points: 380 of 788); 0: all of them. A forehead sloped unlike the template's, or
@@ -155,6 +159,9 @@ class PredictOptions:
             raise ValueError(f"paper_pose_score must be 'template' or 'fp', got {self.paper_pose_score!r}")
         if self.pose_score not in ("trimmed", "truncated"):
             raise ValueError(f"pose_score must be 'trimmed' or 'truncated', got {self.pose_score!r}")
+        if int(self.pose_score_first_iters) < 0 or not float(self.pose_score_margin) >= 0:
+            raise ValueError(f"pose_score_first_iters and pose_score_margin must be >= 0, got "
+                             f"{self.pose_score_first_iters!r} and {self.pose_score_margin!r}")
         if not self.pose_scales or any(not 0.5 <= float(s) <= 2.0 for s in self.pose_scales):
             raise ValueError(f"pose_scales must be template sizes in [0.5, 2], got {self.pose_scales!r}")
         if self.localise not in ("patch", "bp"):
