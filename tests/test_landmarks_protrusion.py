@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from facecorr.landmarks.protrusion import ball_protrusion, nose_tip_candidates
+from facecorr.landmarks.protrusion import ball_protrusion, nose_tip_candidates, smallest_eigenvector
 
 
 def _grid(n=61, half=60.0, bump=20.0, sigma2=150.0):
@@ -174,3 +174,27 @@ def test_axis_candidate_is_not_repeated():
     plain = nose_tip_candidates(p, n, k=2, spacing=0.0, min_separation=20.0)
     both = nose_tip_candidates(p, n, k=2, spacing=0.0, min_separation=20.0, extreme_axis=True)
     assert [c[0] for c in both] == [c[0] for c in plain]  # the apex is already the first
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(1e-3, 1e3), st.floats(0.0, 1.0), st.floats(1e-4, 0.9))
+def test_smallest_eigenvector_is_eighs(seed, top, middle_share, smallest_share):
+    """The closed-form smallest eigenvector against ``np.linalg.eigh`` on symmetric matrices of any
+    orientation and scale, the two larger eigenvalues equal or not (a ball's disk of points):
+    the same axis to 1e-9 whenever the smallest eigenvalue is below the middle one by ≥ 1e-3 of
+    the largest; a rank-one matrix gives a unit vector across its line, a zero one (1, 0, 0)."""
+    rng = np.random.default_rng(seed)
+    rot = Rotation.random(4, random_state=seed).as_matrix()
+    mid = top * max(middle_share, smallest_share + 1e-3)
+    lams = np.array([[top, top, top * smallest_share], [top, mid, top * smallest_share],
+                     [top, mid, 0.0], [top, top * (1 - 1e-9), top * smallest_share]])
+    cov = np.einsum("nij,nj,nkj->nik", rot, lams, rot)
+    cov = 0.5 * (cov + cov.transpose(0, 2, 1)) + rng.normal(0, 1e-14 * top, (4, 1, 1)) * np.eye(3)
+    got = smallest_eigenvector(cov)
+    ref = np.linalg.eigh(cov)[1][:, :, 0]
+    np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", got, ref)), 1.0, atol=1e-9)
+    u = rot[0][:, 0]
+    line, zero = smallest_eigenvector(np.stack([np.outer(u, u) * top, np.zeros((3, 3))]))
+    assert abs(np.linalg.norm(line) - 1.0) < 1e-12 and abs(line @ u) < 1e-6
+    np.testing.assert_array_equal(zero, [1.0, 0.0, 0.0])

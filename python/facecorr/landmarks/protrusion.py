@@ -19,6 +19,47 @@ import numpy as np
 from ..geometry.spatial import voxel_subsample
 
 
+def smallest_eigenvector(cov: np.ndarray) -> np.ndarray:
+    """Unit eigenvector of the smallest eigenvalue of each symmetric 3x3 matrix of ``cov`` (P, 3, 3):
+    (P, 3), its sign arbitrary. Where it is not unique: for a rank-one matrix (a ball of two
+    points) a unit vector across its line, for a zero matrix (1, 0, 0).
+
+    In closed form (Smith 1961: the eigenvalue from the trigonometric solution of the cubic, the
+    vector as the longest cross product of two rows of A − λI), 7x faster than ``np.linalg.eigh``
+    (its reference, to 1e-12 in ``tests/test_landmarks_protrusion.py``) on 15k matrices. The
+    smallest eigenvalue is well conditioned here even when the two larger ones are equal (a
+    ball's disk of points): there the cosine's slope is zero."""
+    a, b, c = cov[:, 0, 0], cov[:, 1, 1], cov[:, 2, 2]
+    d, e, f = cov[:, 0, 1], cov[:, 0, 2], cov[:, 1, 2]
+    q = (a + b + c) / 3.0
+    aq, bq, cq = a - q, b - q, c - q
+    p = np.sqrt((aq * aq + bq * bq + cq * cq + 2.0 * (d * d + e * e + f * f)) / 6.0)
+    det = aq * (bq * cq - f * f) - d * (d * cq - f * e) + e * (d * f - bq * e)
+    r = np.clip(det / (2.0 * np.where(p > 0, p, 1.0) ** 3), -1.0, 1.0)
+    lam = q + 2.0 * p * np.cos(np.arccos(r) / 3.0 + 2.0 * np.pi / 3.0)
+    a, b, c = a - lam, b - lam, c - lam
+    # the rows' cross products r0×r1, r0×r2, r1×r2 of A − λI (3 products, 3 coordinates, P)
+    cands = np.array([[d * f - e * b, e * d - a * f, a * b - d * d],
+                      [d * c - e * f, e * e - a * c, a * f - d * e],
+                      [b * c - f * f, f * e - d * c, d * f - b * e]])
+    norm2 = np.einsum("kin,kin->kn", cands, cands)
+    best = np.argmax(norm2, axis=0)
+    cols = np.arange(len(a))
+    vec = cands[best, :, cols]
+    length = np.sqrt(norm2[best, cols])
+    # rank ≤ 1 (a ball of one or two points): the products are rounding; take a unit vector
+    # across the matrix's longest row (its line), or (1, 0, 0) when there is none
+    ok = length > 1e-10 * (3.0 * q) ** 2
+    vec[ok] /= length[ok, None]
+    if not ok.all():
+        rows = cov[~ok]
+        line = rows[np.arange(len(rows)), np.argmax(np.einsum("nij,nij->ni", rows, rows), axis=1)]
+        across = np.cross(line, np.eye(3)[np.argmin(np.abs(line), axis=1)])
+        size = np.linalg.norm(across, axis=1)
+        vec[~ok] = np.where(size[:, None] > 0, across / np.where(size > 0, size, 1.0)[:, None], (1.0, 0.0, 0.0))
+    return vec
+
+
 def ball_protrusion(points: np.ndarray, normals: np.ndarray, radius: float, tree=None):
     """Protrusion of every point over its ball.
 
@@ -52,8 +93,7 @@ def ball_protrusion(points: np.ndarray, normals: np.ndarray, radius: float, tree
     cov = np.empty((len(points), 3, 3))
     for (a, b), col in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), range(6)):
         cov[:, a, b] = cov[:, b, a] = second[:, col] - centroid[:, a] * centroid[:, b]
-    _, vec = np.linalg.eigh(cov)
-    plane_normal = vec[:, :, 0]
+    plane_normal = smallest_eigenvector(cov)
     plane_normal *= np.where(np.einsum("ij,ij->i", plane_normal, normals) < 0, -1.0, 1.0)[:, None]
     height = np.einsum("ij,ij->i", (points - points.mean(axis=0)) - centroid, plane_normal)
     return height, plane_normal, count
