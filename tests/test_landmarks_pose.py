@@ -290,7 +290,8 @@ def test_pose_scores_in_two_rounds_continue_only_the_contenders():
     iterations, and the poses within ``margin`` of the best (after the caller's ``offsets``) go
     on to ``iters``, resumed. Its reference: the one-round scores for those that go on (bitwise:
     a resumed ICP is one run), the first round's own scores for the others; a margin of 0
-    continues the best pose alone, offsets change which."""
+    continues the best pose alone, offsets change which; ``finish()`` gives the one-round scores
+    of every pose."""
     from facecorr.landmarks.pose import surface_icp
     from facecorr.landmarks.start import _pose_scores
 
@@ -305,14 +306,40 @@ def test_pose_scores_in_two_rounds_continue_only_the_contenders():
 
     full, first = np.array(reference(10)), np.array(reference(3))
     assert first.max() - first.min() > 1.0  # the sweep has contenders and hopeless poses
-    np.testing.assert_array_equal(_pose_scores(pts, mesh, poses, "trimmed", 10), full)
-    np.testing.assert_array_equal(_pose_scores(pts, mesh, poses, "trimmed", 10, first_iters=3), full)
-    np.testing.assert_array_equal(_pose_scores(pts, mesh, poses, "truncated", 10, first_iters=3),
-                                  _pose_scores(pts, mesh, poses, "truncated", 10))
+    one, finish = _pose_scores(pts, mesh, poses, "trimmed", 10)
+    np.testing.assert_array_equal(one, full)
+    np.testing.assert_array_equal(finish(), full)
+    np.testing.assert_array_equal(_pose_scores(pts, mesh, poses, "trimmed", 10, first_iters=3)[0], full)
+    np.testing.assert_array_equal(_pose_scores(pts, mesh, poses, "truncated", 10, first_iters=3)[0],
+                                  _pose_scores(pts, mesh, poses, "truncated", 10)[0])
     for margin, offsets in ((0.5, None), (0.0, None), (0.0, -10.0 * (np.arange(8) == 5))):
         ranked = first + (0 if offsets is None else offsets)
         go_on = ranked <= ranked.min() + margin
-        got = _pose_scores(pts, mesh, poses, "trimmed", 10, offsets=offsets, first_iters=3, margin=margin)
+        got, finish = _pose_scores(pts, mesh, poses, "trimmed", 10, offsets=offsets, first_iters=3, margin=margin)
         np.testing.assert_array_equal(np.where(go_on, full, first), got)
         assert go_on.sum() < len(poses)
+        np.testing.assert_array_equal(finish(), full)
+        np.testing.assert_array_equal(finish(), full)  # kept, not recomputed into something else
     assert go_on[5] and go_on.sum() == 1  # the offset made pose 5 the best of the first round
+
+
+def test_lazy_poses_compute_once_and_move():
+    """``start.LazyPoses``: computed on first read only, once for every moved copy, and a moved
+    copy's translations are the originals plus the offsets."""
+    from facecorr.landmarks.start import LazyPoses
+
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return [(np.eye(3), np.array([1.0, 2.0, 3.0]), 0.5, 1.0), (np.eye(3), np.zeros(3), 0.7, 0.8)]
+
+    lazy = LazyPoses(compute)
+    moved = lazy.moved([10.0, 0.0, 0.0]).moved([0.0, 5.0, 0.0])
+    assert not calls
+    assert len(moved) == 2 and len(calls) == 1
+    np.testing.assert_array_equal(moved[0][1], [11.0, 7.0, 3.0])
+    np.testing.assert_array_equal([p[1] for p in lazy], [[1.0, 2.0, 3.0], [0.0, 0.0, 0.0]])
+    assert [p[2:] for p in moved] == [(0.5, 1.0), (0.7, 0.8)] and len(calls) == 1
+    assert list(LazyPoses(list)) == []
+    assert len([None] + lazy) == 3 and len(lazy + [None]) == 3  # concatenates like the list it stands for

@@ -116,7 +116,8 @@ class PredictOptions:
     similarity_points_radius: float = 0.0
     coarse_scan_spacing: float = 0.0  # >0: the coarse pose ranking on the scan subsampled at this spacing, mm (0: all)
     # The next best poses that read the scan differently (posed landmark graph ≥ this many mm
-    # apart, mean of the 8), kept as debug["alternative_poses"] [(R, t, icp rms, size)]: the
+    # apart, mean of the 8), kept as debug["alternative_poses"] [(R, t, icp rms, size)] (computed
+    # when first read, start.LazyPoses): the
     # pipeline registers from them when its fit is implausible (pipeline/correspond.py).
     n_alternative_poses: int = 2
     alternative_pose_distance: float = 10.0
@@ -206,8 +207,9 @@ class LandmarkResult:
             r, t = debug["pose"]
             debug["pose"] = (r, np.asarray(t) + offset)
         if "alternative_poses" in debug:
-            debug["alternative_poses"] = [(r, np.asarray(t) + offset, rms, size)
-                                          for r, t, rms, size in debug["alternative_poses"]]
+            alt = debug["alternative_poses"]  # a start.LazyPoses: moved without computing it
+            debug["alternative_poses"] = (alt.moved(offset) if hasattr(alt, "moved") else
+                                          [(r, np.asarray(t) + offset, rms, size) for r, t, rms, size in alt])
         return replace(self, positions={k: np.asarray(v) + offset for k, v in self.positions.items()}, debug=debug)
 
 

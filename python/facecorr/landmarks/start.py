@@ -11,6 +11,8 @@ shoulder or a hairy scalp can fit the upper face better than an unusual face (BE
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ..errors import LandmarkError
@@ -81,19 +83,20 @@ def _pose_score(points, tree, r, t, normals, kind: str, scale: float = 1.0, iter
 
 
 def _pose_scores(points, mesh, poses, kind: str, iters: int = 10, offsets=None, first_iters: int = 0,
-                 margin: float = np.inf) -> list:
+                 margin: float = np.inf):
     """:func:`_pose_score` of every pose (R, t, scale) of ``poses`` on ``mesh``: the same scores,
     the ICPs in Rust on ``mesh.surface`` (:func:`.pose.surface_icp`), the poses of one template
-    size in one call (in parallel).
+    size in one call (in parallel). Returns (scores (P,) list, finish): ``finish()`` gives every
+    pose's score after ``iters`` iterations (computed on first call, then kept).
 
     ``first_iters`` > 0 scores in two rounds (successive halving): every pose after
     ``first_iters`` iterations, then only the poses whose score plus ``offsets`` (P,) (what the
     caller adds to a score before ranking; None: 0) lies within ``margin`` of the best go on,
     resumed where they stopped (bitwise the scores of one run of ``iters``); the others keep
-    their first-round score, an upper bound of what more iterations would reach. Measured on 564
-    pose searches (490 test scans, three splits): after 3 iterations the eventual winner was at
-    most 1.48 mm behind the best, so a 2.5 mm margin loses no winner while ~60 % of the poses stop
-    early (BENCHMARKS.md, "Throughput, eighth pass")."""
+    their first-round score in ``scores``, and ``finish()`` resumes them too when asked. Measured
+    on 564 pose searches (490 test scans, three splits): after 3 iterations the eventual winner
+    was at most 1.48 mm behind the best, so a 2.5 mm margin loses no winner while ~60 % of the
+    poses stop early (BENCHMARKS.md, "Throughput, eighth pass")."""
     offsets = np.zeros(len(poses)) if offsets is None else np.asarray(offsets, dtype=np.float64)
 
     def score(fit):
@@ -108,20 +111,64 @@ def _pose_scores(points, mesh, poses, kind: str, iters: int = 10, offsets=None, 
                 fits[k] = fit
         return fits
 
+    def resume(ks):
+        return run(ks, {k: first[k][:2] for k in ks}, {k: first[k][4] for k in ks}, iters - first_iters)
+
     every = list(range(len(poses)))
-    fresh = {k: np.inf for k in every}
     starts = {k: p[:2] for k, p in enumerate(poses)}
     if not 0 < first_iters < iters:
-        fits = run(every, starts, fresh, iters)
-        return [score(fits[k]) for k in every]
-    first = run(every, starts, fresh, first_iters)
+        fits = run(every, starts, {k: np.inf for k in every}, iters)
+        out = [score(fits[k]) for k in every]
+        return out, lambda: list(out)
+    first = run(every, starts, {k: np.inf for k in every}, first_iters)
     out = [score(first[k]) for k in every]
     ranked = np.asarray(out) + offsets
     go_on = [k for k in every if ranked[k] <= ranked.min() + margin]
-    rest = run(go_on, {k: first[k][:2] for k in go_on}, {k: first[k][4] for k in go_on}, iters - first_iters)
-    for k in go_on:
-        out[k] = score(rest[k])
-    return out
+    for k, fit in resume(go_on).items():
+        out[k] = score(fit)
+    full = []
+
+    def finish():
+        if not full:
+            rest = resume([k for k in every if k not in go_on])
+            full.extend(score(rest[k]) if k in rest else out[k] for k in every)
+        return list(full)
+
+    return out, finish
+
+
+class LazyPoses(Sequence):
+    """A list of poses (R (3, 3), t (3,) mm, ICP rms mm, template size) computed on first use by
+    ``compute()`` and translated by ``offset`` (3,) mm: the alternative poses, which only a refit
+    of an implausible fit reads, and which cost the stopped pose scores' remaining iterations."""
+
+    def __init__(self, compute, offset=None, _cache=None):
+        self._compute, self._cache = compute, ([] if _cache is None else _cache)
+        self._offset = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
+
+    def _poses(self) -> list:
+        if not self._cache:
+            self._cache.append(self._compute())
+        return [(r, np.asarray(t) + self._offset, rms, size) for r, t, rms, size in self._cache[0]]
+
+    def __getitem__(self, i):
+        return self._poses()[i]
+
+    def __len__(self) -> int:
+        return len(self._poses())
+
+    def __add__(self, other) -> list:
+        return self._poses() + list(other)
+
+    def __radd__(self, other) -> list:
+        return list(other) + self._poses()
+
+    def __repr__(self) -> str:
+        return f"LazyPoses({self._poses() if self._cache else '<not computed>'})"
+
+    def moved(self, offset) -> "LazyPoses":
+        """The same poses translated by ``offset`` (3,) mm more (computed once for both)."""
+        return LazyPoses(self._compute, self._offset + np.asarray(offset, dtype=np.float64), self._cache)
 
 
 #: The truncation distance of the ``"truncated"`` pose score, mm: a skin point that matches lies
@@ -192,23 +239,30 @@ def protrusion_pose(mesh, model, opts, timer, name):
         # a nose tip stands out of its ball: a pose seeded at a higher protrusion is likelier
         bonus = (float(opts.pose_height_weight) * np.array([p[4] for p in poses])
                  if opts.pose_height_weight > 0 and opts.poses_per_tip > 0 else np.zeros(len(poses)))
-        scores = _pose_scores(full, mesh, [(pr, pt, s) for pr, pt, _, s, _ in poses], opts.pose_score,
-                              int(opts.pose_score_iters), offsets=-bonus,
-                              first_iters=int(opts.pose_score_first_iters), margin=float(opts.pose_score_margin))
+        scores, finish = _pose_scores(full, mesh, [(pr, pt, s) for pr, pt, _, s, _ in poses], opts.pose_score,
+                                      int(opts.pose_score_iters), offsets=-bonus,
+                                      first_iters=int(opts.pose_score_first_iters),
+                                      margin=float(opts.pose_score_margin))
         scores = [sc - b for sc, b in zip(scores, bonus)]
-        order = [int(i) for i in np.argsort(scores)]
-        chosen = [order[0]] + _distinct_poses(model, poses, order, int(opts.n_alternative_poses),
-                                              float(opts.alternative_pose_distance))
-        out = []
-        for i in chosen:
+        best = int(np.argsort(scores)[0])
+
+        def posed(i):
             r, t, rms, s, _ = poses[i]
             if not fine:
                 r, t, rms, _ = surface_icp(s * pose_points(model, opts.pose_points_radius), mesh.surface, [(r, t)],
                                            iters=40)[0]
-            out.append((r, t, rms, s))
-    (r, t, rms, s), alternatives = out[0], out[1:]
+            return r, t, rms, s
+
+        def alternatives():
+            # every pose's full score (the stopped ones resumed): the order of one-round scores
+            final = [sc - b for sc, b in zip(finish(), bonus)]
+            order = [best] + [int(i) for i in np.argsort(final) if int(i) != best]
+            return [posed(i) for i in _distinct_poses(model, poses, order, int(opts.n_alternative_poses),
+                                                      float(opts.alternative_pose_distance))]
+
+        r, t, rms, s = posed(best)
     return r, t, rms, dict(tip_candidates=[(v, h) for v, h, _ in tips], pose_rms=[p[2] for p in poses],
-                           pose_full_rms=scores, pose_scale=s, alternative_poses=alternatives)
+                           pose_full_rms=scores, pose_scale=s, alternative_poses=LazyPoses(alternatives))
 
 
 def _distinct_poses(model, poses, order, n: int, distance: float) -> list:
