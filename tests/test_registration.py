@@ -444,3 +444,10 @@ def test_anderson_rounds_end_where_the_plain_rounds_do():
     d = np.linalg.norm(fast.vertices - plain.vertices, axis=1)
     assert np.median(d) < 0.05 and d.max() < 0.3, (np.median(d), d.max())
     assert fast.rounds[-1]["energy"] <= 1.005 * plain.rounds[-1]["energy"]
+
+
+@pytest.mark.parametrize("bad, message", [(dict(weights="x"), "weights must be 'paper' or 'uniform'"),
+                                          (dict(solver="x"), "solver must be 'newton' or 'lbfgsb'")])
+def test_expression_options_out_of_range_are_value_errors(bad, message):
+    with pytest.raises(ValueError, match=message):
+        fit_expression(None, None, None, **bad)

@@ -398,9 +398,9 @@ def fit_expression(template, transform, scan: Mesh, landmarks=None, alpha0=None,
     """
     o = resolve(options, ExpressionOptions, overrides, "fit_expression")
     if o.weights not in ("paper", "uniform"):
-        raise ValueError(f"weights must be 'paper' or 'uniform', got {o['weights']!r}")
+        raise ValueError(f"weights must be 'paper' or 'uniform', got {o.weights!r}")
     if o.solver not in ("newton", "lbfgsb"):
-        raise ValueError(f"solver must be 'newton' or 'lbfgsb', got {o['solver']!r}")
+        raise ValueError(f"solver must be 'newton' or 'lbfgsb', got {o.solver!r}")
     t0 = time.perf_counter()
     T = np.asarray(transform, dtype=np.float64)
     k_expr = template.n_blendshapes
