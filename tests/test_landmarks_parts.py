@@ -47,13 +47,20 @@ def test_voxel_subsample_one_per_cell():
         assert v == same[np.argmin(off)]
 
 
+def _voxel_subsample_reference(points, ids, spacing):
+    """``voxel_subsample`` by a lexsort of (cell, distance to its centre): per cell the first."""
+    ids = np.asarray(ids, dtype=np.int64)
+    cell = np.floor(points[ids] / spacing)
+    order = np.lexsort((np.linalg.norm(points[ids] - (cell + 0.5) * spacing, axis=1), *cell.T[::-1]))
+    c = cell[order]
+    return np.sort(ids[order[np.r_[True, np.any(c[1:] != c[:-1], axis=1)]]])
+
+
 @settings(max_examples=150, deadline=None)
 @given(st.integers(1, 400), st.sampled_from([0.25, 0.5, 1.0, 2.0]), st.integers(0, 2**31))
 def test_voxel_subsample_is_the_lexsort_reference(n, spacing, seed):
     """The hashed grouping picks what the lexsort reference picks, ties (points on a lattice: equal
     distances to the cell centre, duplicates, -0.0) to the first of ``ids``."""
-    from facecorr.geometry.spatial import _voxel_subsample_reference
-
     rng = np.random.default_rng(seed)
     pts = rng.integers(-4, 4, size=(n, 3)).astype(float) * rng.choice([0.25, 0.5, 1.0])
     pts[rng.random(n) < 0.1] *= -0.0  # some -0.0 coordinates

@@ -179,8 +179,8 @@ def mhd(p, f_vertices, tree: "KDTree | None" = None) -> float:
 def voxel_subsample(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.ndarray:
     """Subset of ``ids`` with at most one vertex per cube of side ``spacing`` (mm): the vertex
     nearest to its cell's centre (equally near: the first in ``ids``), returned sorted. O(n) (cells
-    grouped by hashing, ``_core.equal_rows``: on a 56k-vertex scan 22 -> 5 ms for the lexsort of
-    :func:`_voxel_subsample_reference`, the same subset); keeps the candidate sets evenly spread
+    grouped by hashing, ``_core.equal_rows``: on a 56k-vertex scan 22 -> 5 ms for a lexsort, the
+    same subset: the reference in ``tests/test_landmarks_parts.py``); keeps the candidate sets evenly spread
     whatever the scan's resolution."""
     from .. import _core
 
@@ -198,21 +198,6 @@ def voxel_subsample(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.n
     first = np.full(n_groups, len(ids))
     np.minimum.at(first, group[pos], pos)  # ties: the first
     return np.sort(ids[first])
-
-
-def _voxel_subsample_reference(points: np.ndarray, ids: np.ndarray, spacing: float) -> np.ndarray:
-    """:func:`voxel_subsample` by a lexsort of (cell, distance to its centre): the reference."""
-    ids = np.asarray(ids, dtype=np.int64)
-    if len(ids) == 0 or spacing <= 0:
-        return ids
-    p = points[ids]
-    cell = np.floor(p / spacing)
-    off = np.linalg.norm(p - (cell + 0.5) * spacing, axis=1)
-    order = np.lexsort((off, cell[:, 2], cell[:, 1], cell[:, 0]))
-    c = cell[order]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = np.any(c[1:] != c[:-1], axis=1)
-    return np.sort(ids[order[first]])
 
 
 def closest_point_on_triangles(p: np.ndarray, tri: np.ndarray):
