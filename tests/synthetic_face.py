@@ -35,10 +35,11 @@ def _model():
     return _MODEL
 
 
-def make_scan(seed=0, expression=None, identity_sigma=1.0, noise=0.1, rotate=True, warp=None):
+def make_scan(seed=0, expression=None, identity_sigma=1.0, noise=0.1, rotate=True, warp=None, eyeballs=False):
     """Returns (scan Mesh, landmarks dict, gt (N_template, 3), expression dict). ``warp``: optional
     function (N, 3) -> (N, 3) of the model's vertices (model frame, mm: y up, z forward), applied
-    after identity and expression (a face outside the model's span)."""
+    after identity and expression (a face outside the model's span). ``eyeballs``: the scan also
+    has the model's eyeballs (as a range scan sees them through the eye fissures)."""
     m = _model()
     rng = np.random.default_rng(seed)
     names = list(m["expression_names"])
@@ -51,7 +52,8 @@ def make_scan(seed=0, expression=None, identity_sigma=1.0, noise=0.1, rotate=Tru
     if warp is not None:
         v = np.asarray(warp(v), dtype=np.float64)
     parts = list(m["part_names"])
-    use = np.isin(m["part_id"], [parts.index(p) for p in ("face", "head_neck", "mouth_socket", "gums_tongue", "teeth")])
+    kept = ("face", "head_neck", "mouth_socket", "gums_tongue", "teeth") + (("eyeball_left", "eyeball_right") if eyeballs else ())
+    use = np.isin(m["part_id"], [parts.index(p) for p in kept])
     nose = v[m["landmarks68"][30]]
     use &= np.linalg.norm(v - nose, axis=1) < 125.0
     tri = m["triangles"].astype(np.int64)

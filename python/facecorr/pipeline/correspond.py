@@ -343,6 +343,10 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
     if mouth.get("moved"):
         flags.append(f"mouth_moved:{mouth['shift_mm']:.1f}mm (the lips fit the scan better there than where the "
                      f"face model put them)")
+    for eye, e in (reg.details.get("eye_search") or {}).items():
+        if e.get("moved") and (e["x_scale"] != 1.0 or e["y_scale"] != 1.0 or e["shift_mm"] >= 2.0):
+            flags.append(f"eye_moved:{eye} {e['shift_mm']:.1f}mm, {e['x_scale']:.2f}x as wide (the lids fit the scan's "
+                         f"eye better there than where the face model put them)")
     ids = np.asarray(template.landmark_ids)
     for name, d in zip(LANDMARK_NAMES, reg.scan_distance[ids]):
         if d > opts.off_surface_distance:

@@ -1,7 +1,8 @@
 """Registration of the blendshape template onto a scan (paper §4, floor 4: a stage).
 
 :func:`register` (:mod:`.register`) runs landmark alignment (:mod:`.alignment`), expression +
-identity fitting (:mod:`.expression`, :mod:`.identity`) and shape fitting (:mod:`.shape`, Rust);
+identity fitting (:mod:`.expression`, :mod:`.identity`), the mouth and eye searches (:mod:`.mouth`,
+:mod:`.eyes`: lips and lids moved where the scan's are) and shape fitting (:mod:`.shape`, Rust);
 :mod:`.identity_training` learns the identity basis. Imports only the floors below (never
 ``landmarks``).
 """

@@ -22,6 +22,7 @@ from ..options import resolve
 from ..names import LANDMARK_NAMES
 from .alignment import ALIGN_MODES, align_landmarks, apply_transform
 from .expression import ExpressionFit, ExpressionOptions, fit_expression, rim_mask
+from .eyes import EyeSearchOptions, search_eyes
 from .mouth import MouthSearchOptions, search_mouth
 from .shape import ShapeFit, ShapeFitOptions, fit_shape
 
@@ -138,6 +139,10 @@ class RegisterOptions:
     # Before the shape fit, look for the scan's lips along the face's vertical axis and move the
     # fitted template's mouth onto them when it stands clearly elsewhere (see mouth.py; None: off).
     mouth_search: MouthSearchOptions | None = field(default_factory=MouthSearchOptions)
+    # Before the shape fit, fit each eye's region (with an eyeball in the template's eye hole) to
+    # the scan from a ladder of widths and move it where its lids fit clearly better (see eyes.py;
+    # None: off).
+    eye_search: EyeSearchOptions | None = field(default_factory=EyeSearchOptions)
 
     def __post_init__(self):
         if self.alignment not in ALIGN_MODES:
@@ -310,6 +315,10 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
         start, details["mouth_search"] = search_mouth(expr.vertices, template, mesh, transform, opts.mouth_search,
                                                       exclude=rim_mask(template, 1))
         timings["mouth_search"] = time.perf_counter() - t0
+    if opts.fit_shape and opts.eye_search is not None and opts.fit_expression:
+        t0 = time.perf_counter()
+        start, details["eye_search"] = search_eyes(start, template, mesh, transform, opts.eye_search)
+        timings["eye_search"] = time.perf_counter() - t0
     if opts.fit_shape:
         tw = None
         if opts.shape_lip_rim_rings >= 0:

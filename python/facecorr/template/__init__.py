@@ -132,7 +132,7 @@ from __future__ import annotations
 
 from .model import (
     BOUNDARY_LOOP_NAMES, CHIN, DATA_DIR, GRAPH_EDGES, ICT_MODEL_PATH, MOUTH, REGION_NAMES,
-    TEMPLATE_PATH, UPPER, Template, load_template, template_from_arrays,
+    TEMPLATE_PATH, UPPER, Template, eye_caps, load_template, template_from_arrays,
 )
 
 #: Names served from :mod:`.build`, imported on first access (PEP 562): ``python -m
@@ -146,7 +146,7 @@ _BUILD_NAMES = (
 
 __all__ = [
     "BOUNDARY_LOOP_NAMES", "CHIN", "DATA_DIR", "GRAPH_EDGES", "ICT_MODEL_PATH", "MOUTH",
-    "REGION_NAMES", "TEMPLATE_PATH", "UPPER", "Template", "load_template", "template_from_arrays",
+    "REGION_NAMES", "TEMPLATE_PATH", "UPPER", "Template", "eye_caps", "load_template", "template_from_arrays",
     *_BUILD_NAMES,
 ]
 

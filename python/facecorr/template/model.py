@@ -166,3 +166,49 @@ def load_template() -> Template:
     """The packaged template (``data/template.npz``), loaded once and cached."""
     with np.load(TEMPLATE_PATH) as d:
         return template_from_arrays(d)
+
+
+def _inside_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """(P,) bool: even-odd test of 2D ``points`` (P, 2) against a closed ``polygon`` (L, 2)."""
+    x, y = points[:, 0][:, None], points[:, 1][:, None]
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    crosses = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_at = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return (crosses & (x < x_at)).sum(axis=1) % 2 == 1
+
+
+@lru_cache(maxsize=4)
+def eye_caps(template: Template, stride: int = 3) -> dict:
+    """The front of each eyeball as the template's eye hole shows it, template frame (mm).
+
+    The ICT model's own eyeballs (``eyeball_right``/``eyeball_left`` of the packaged ICT model,
+    the frame the template is cut in): the vertices of the eyeball's front half that lie inside
+    the eye's boundary loop seen from the front (+z) and at least 1 mm from it, every
+    ``stride``-th. Used by the eye search (:mod:`facecorr.registration.eyes`) as the recessed dome
+    the lids close around.
+
+    Returns
+    -------
+    dict "right_eye" / "left_eye" -> (C, 3) float64; empty if the template is not cut from the
+    packaged ICT model's neutral face (its vertices differ from it by more than 1e-3 mm).
+    """
+    v = np.asarray(template.vertices, float)
+    iv = np.asarray(template.ict_vertex)
+    with np.load(ICT_MODEL_PATH) as d:
+        neutral, part_id, parts = d["neutral"], d["part_id"], [str(s) for s in d["part_names"]]
+    if len(iv) != len(v) or iv.max(initial=-1) >= len(neutral) or np.abs(neutral[iv] - v).max() > 1e-3:
+        return {}
+    out = {}
+    for name in ("right_eye", "left_eye"):
+        loop = np.asarray(template.boundary_loops.get(name, ()), dtype=np.int64)
+        part = "eyeball_" + name.split("_")[0]
+        if len(loop) < 3 or part not in parts:
+            continue
+        ball = neutral[part_id == parts.index(part)].astype(np.float64)
+        front = ball[ball[:, 2] > np.median(ball[:, 2])]
+        ring = v[loop]
+        gap = np.sqrt(((front[:, None, :2] - ring[None, :, :2]) ** 2).sum(-1)).min(axis=1)
+        keep = _inside_polygon(front[:, :2], ring[:, :2]) & (gap >= 1.0)
+        out[name] = np.ascontiguousarray(front[keep][::stride])
+    return out
