@@ -32,6 +32,7 @@ class EyeSearchOptions:
     x_scales: tuple = (0.75, 0.8, 0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15, 1.2, 1.25)
     y_scales: tuple = (1.0,)
     iters: int = 20                 # ICP iterations from each start
+    stride: int = 1                 # every n-th vertex of the region takes part in the ICP
     keep: float = 0.9               # share of the points the trimmed ICP matches
     # The landing at the eye's own width (x and y scale 1) is the candidate; a landing at another
     # width replaces it when its RMS is at most ``width_ratio`` × that landing's. The candidate is
@@ -102,6 +103,7 @@ def search_eyes(vertices: np.ndarray, template, scan, transform: np.ndarray, opt
         ids, dist = _region(template, name, float(o.margin))
         if len(ids) < 20:
             continue
+        ids = ids[::max(1, int(o.stride))]
         region = out[ids]
         # the dome rides with the region: the affine map of the region from the template's rest
         # shape to its fitted shape, applied to the dome's rest points
