@@ -347,6 +347,10 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         if e.get("moved") and (e["x_scale"] != 1.0 or e["y_scale"] != 1.0 or e["shift_mm"] >= 2.0):
             flags.append(f"eye_moved:{eye} {e['shift_mm']:.1f}mm, {e['x_scale']:.2f}x as wide (the lids fit the scan's "
                          f"eye better there than where the face model put them)")
+    nose = (reg.details.get("nose_search") or {}).get("nose") or {}
+    if nose.get("moved") and (nose["x_scale"] != 1.0 or nose["y_scale"] != 1.0 or nose["shift_mm"] >= 2.0):
+        flags.append(f"nose_moved:{nose['shift_mm']:.1f}mm, {nose['x_scale']:.2f}x as wide (the nose fits the scan's "
+                     f"better there than where the face model put it)")
     ids = np.asarray(template.landmark_ids)
     for name, d in zip(LANDMARK_NAMES, reg.scan_distance[ids]):
         if d > opts.off_surface_distance:

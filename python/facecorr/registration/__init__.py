@@ -1,8 +1,9 @@
 """Registration of the blendshape template onto a scan (paper §4, floor 4: a stage).
 
 :func:`register` (:mod:`.register`) runs landmark alignment (:mod:`.alignment`), expression +
-identity fitting (:mod:`.expression`, :mod:`.identity`), the mouth and eye searches (:mod:`.mouth`,
-:mod:`.eyes`: lips and lids moved where the scan's are) and shape fitting (:mod:`.shape`, Rust);
+identity fitting (:mod:`.expression`, :mod:`.identity`), the mouth, eye and nose searches
+(:mod:`.mouth`, :mod:`.eyes`, :mod:`.nose` with :mod:`.feature_search`: lips, lids and alae moved
+where the scan's are) and shape fitting (:mod:`.shape`, Rust);
 :mod:`.identity_training` learns the identity basis. Imports only the floors below (never
 ``landmarks``).
 """

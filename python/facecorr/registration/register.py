@@ -24,6 +24,7 @@ from .alignment import ALIGN_MODES, align_landmarks, apply_transform
 from .expression import ExpressionFit, ExpressionOptions, fit_expression, rim_mask
 from .eyes import EyeSearchOptions, search_eyes
 from .mouth import MouthSearchOptions, search_mouth
+from .nose import NoseSearchOptions, search_nose
 from .shape import ShapeFit, ShapeFitOptions, fit_shape
 
 __all__ = ["RegistrationResult", "RegisterOptions", "register"]
@@ -143,6 +144,8 @@ class RegisterOptions:
     # the scan from a ladder of widths and move it where its lids fit clearly better (see eyes.py;
     # None: off).
     eye_search: EyeSearchOptions | None = field(default_factory=EyeSearchOptions)
+    # Then the lower nose (tip, alae, nostrils) the same way (see nose.py; None: off).
+    nose_search: NoseSearchOptions | None = field(default_factory=NoseSearchOptions)
 
     def __post_init__(self):
         if self.alignment not in ALIGN_MODES:
@@ -319,6 +322,10 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
         t0 = time.perf_counter()
         start, details["eye_search"] = search_eyes(start, template, mesh, transform, opts.eye_search)
         timings["eye_search"] = time.perf_counter() - t0
+    if opts.fit_shape and opts.nose_search is not None and opts.fit_expression:
+        t0 = time.perf_counter()
+        start, details["nose_search"] = search_nose(start, template, mesh, transform, opts.nose_search)
+        timings["nose_search"] = time.perf_counter() - t0
     if opts.fit_shape:
         tw = None
         if opts.shape_lip_rim_rings >= 0:
