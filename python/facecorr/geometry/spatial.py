@@ -13,7 +13,7 @@ import numpy as np
 
 from .. import _core
 
-__all__ = ["KDTree", "closest_point_on_triangles", "mhd", "surface_distance", "voxel_subsample"]
+__all__ = ["KDTree", "closest_point_on_triangles", "mhd", "voxel_subsample"]
 
 
 def _as_points(a, what: str) -> np.ndarray:
@@ -211,31 +211,3 @@ def closest_point_on_triangles(p: np.ndarray, tri: np.ndarray):
     tri = np.asarray(tri, dtype=np.float64).reshape(-1, 3, 3)
     bary, dist = closest_points_on_triangles(p, tri[:, 0], tri[:, 1], tri[:, 2])
     return dist, np.einsum("kc,kcd->kd", bary, tri)
-
-
-def surface_distance(points, vertices, faces, nearest) -> np.ndarray:
-    """(K,) distance of each point to the surface of the mesh (``vertices``, ``faces``), mm.
-
-    The closest point is sought on the triangles around each point's nearest vertex
-    (``nearest`` (K,) int, e.g. from ``KDTree.query``): exact whenever the closest surface point
-    lies on them, as for points near a well-shaped mesh, and never more than the distance to that
-    vertex. Unlike the nearest-vertex distance it is ~0 on the surface whatever the mesh's
-    resolution, and grows beyond its border and over its holes. A vertex in no triangle counts as
-    a point of the surface.
-    """
-    points = np.asarray(points, dtype=np.float64)
-    vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    nearest = np.asarray(nearest, dtype=np.int64)
-    flat = faces.ravel()
-    order = np.argsort(flat, kind="stable")  # the corners of each vertex, CSR-style
-    starts = np.searchsorted(flat[order], np.arange(len(vertices) + 1))
-    counts = starts[nearest + 1] - starts[nearest]
-    owner = np.repeat(np.arange(len(points)), counts)  # one (point, incident triangle) pair a row
-    within = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
-    tri = order[np.repeat(starts[nearest], counts) + within] // 3
-    out = np.linalg.norm(points - vertices[nearest], axis=1)
-    if len(owner):
-        d, _ = closest_point_on_triangles(points[owner], vertices[faces[tri]])
-        np.minimum.at(out, owner, d)
-    return out

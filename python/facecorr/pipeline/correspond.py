@@ -42,8 +42,9 @@ class Result:
     fit_rms : float or None, RMS residual of the expression + identity fit, mm (how well the model
         explains the scan; None when the expression is not fitted).
     surface_distance : (N,) float64 or None, each registered vertex's distance to the scan's
-        surface, mm (:func:`facecorr.geometry.spatial.surface_distance`): ~0 where the template
-        lies on the scan, growing where it misses it or reaches past its border.
+        surface, mm (its closest point on the triangles around its nearest scan vertex, walked on
+        to neighbouring triangles while it lies on an edge: ``Mesh.surface.closest``): ~0 where the
+        template lies on the scan, growing where it misses it or reaches past its border.
     neutral_vertices : (N, 3) float64 or None, the expression-removed shape: the registered
         template with the fitted expression taken away (same identity, neutral face, same vertex
         order), mm, the scan's frame (:func:`facecorr.registration.neutral.neutral_shape`).
@@ -361,10 +362,7 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
         flags.append(f"several_pieces:{n_large} large pieces (the registration used the one under the landmarks)")
     uncovered = reg.scan_distance > opts.coverage_distance
     coverage = float(np.mean(~uncovered))
-    from ..geometry.spatial import surface_distance
-
-    _, nearest = work.kdtree.query(reg.vertices)
-    surface = surface_distance(reg.vertices, work.vertices, work.faces, nearest)
+    surface = work.surface.closest(np.ascontiguousarray(reg.vertices, dtype=np.float64), 1)[3]
     if coverage < opts.min_coverage:
         flags.append(f"low_coverage:{100 * coverage:.0f}% of the template has scan under it")
     timings.update({f"registration.{k}": v for k, v in reg.timings_s.items()})
