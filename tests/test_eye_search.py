@@ -13,6 +13,7 @@ from synthetic_face import make_scan  # noqa: E402
 
 from facecorr.registration import RegisterOptions, register
 from facecorr.registration.eyes import EYE_IBUG, EyeSearchOptions, search_eyes
+from facecorr.registration.nose import NoseSearchOptions
 from facecorr.template import eye_caps, load_template, template_from_arrays
 from facecorr.template.model import _inside_polygon
 
@@ -109,14 +110,16 @@ def test_eyes_in_place_stay_in_place(face_with_eyeballs):
         assert np.linalg.norm(out[ids] - gt[ids], axis=1).max() < 0.2
 
 
-def test_register_with_the_search_off_is_the_search_never_taken():
-    """``eye_search=None`` and a search whose landings are never good enough give the same fit."""
+@pytest.mark.parametrize("option,options_class", [("eye_search", EyeSearchOptions), ("nose_search", NoseSearchOptions)])
+def test_register_with_a_search_off_is_the_search_never_taken(option, options_class):
+    """``eye_search=None`` (``nose_search=None``) and a search whose landings are never good enough
+    give the same fit."""
     tpl = load_template()
     mesh, lms, _, _ = make_scan(0)
     never = register(mesh, lms, template=tpl,
-                     options=replace(RegisterOptions(), eye_search=EyeSearchOptions(max_rms_ratio=0.0)))
-    off = register(mesh, lms, template=tpl, options=replace(RegisterOptions(), eye_search=None))
-    assert "eye_search" not in off.details and not any(e["moved"] for e in never.details["eye_search"].values())
+                     options=replace(RegisterOptions(), **{option: options_class(max_rms_ratio=0.0)}))
+    off = register(mesh, lms, template=tpl, options=replace(RegisterOptions(), **{option: None}))
+    assert option not in off.details and not any(e["moved"] for e in never.details[option].values())
     np.testing.assert_allclose(never.vertices, off.vertices, rtol=0, atol=1e-6)
 
 
