@@ -184,7 +184,9 @@ def test_correspond_repredicts_landmarks_after_an_implausible_fit(monkeypatch, f
     monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
     res = correspond(mesh, template=tpl)
     sized = replace(PredictOptions(), pose_scales=(0.8,), retry=False)
-    assert calls == [PredictOptions(), wider, sized]  # then the wider search, then the smaller template
+    more_poses = replace(PredictOptions(), poses_per_tip=3, retry=False)
+    # then more poses per nose tip, the wider search, the smaller template
+    assert calls == [PredictOptions(), more_poses, wider, sized]
     assert "refit_wider_search_after_implausible_fit" in res.flags
     assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
     assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
@@ -212,10 +214,44 @@ def test_correspond_tries_the_start_searchs_other_poses_after_an_implausible_fit
 
     monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
     res = correspond(mesh, template=tpl)
-    # first, the alternative pose, the wider search, the smaller template's search
-    assert calls == ["search", "alternative", "search", "search"]
+    # first, the alternative pose, more poses per nose tip, the wider search, the smaller template's search
+    assert calls == ["search", "alternative", "search", "search", "search"]
     assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
     assert np.linalg.norm(res.vertices - gt, axis=1).mean() < 2.5
+
+
+@pytest.mark.parametrize("per_tip", [3, 0])
+def test_the_refit_scores_more_poses_per_nose_tip(monkeypatch, per_tip):
+    """Every reading wrong (turned 35 degrees) but the first search with 3 poses per nose-tip
+    candidate: that fit is kept; with ``refit_poses_per_tip=0`` that search is not tried."""
+    import facecorr.landmarks as lm_pkg
+    from facecorr.landmarks.predict import LandmarkResult, PredictOptions
+    from facecorr.pipeline import CorrespondOptions, correspond
+
+    tpl = load_template()
+    mesh, lms, gt, _ = make_scan(3)
+    calls = []
+
+    def fake_predict(mesh_, model=None, options=None, start_pose=None):
+        calls.append(None if options is None else options.poses_per_tip)
+        pos = lms if options is not None and options.poses_per_tip == 3 else _turned_about_the_nose(lms, 35.0)
+        shift = mesh_.vertices[0] - mesh.vertices[0]
+        pos = {k: np.asarray(v) + shift for k, v in pos.items()}
+        return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[],
+                              timings_s={"total": 0.0}, debug={"alternative_poses": []})
+
+    monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
+    res = correspond(mesh, template=tpl, options=CorrespondOptions(refit_poses_per_tip=per_tip))
+    default = PredictOptions().poses_per_tip
+    err = np.linalg.norm(res.vertices - gt, axis=1).mean()
+    if per_tip:
+        # first, more poses per tip, the wider search, the smaller template
+        assert calls == [default, 3, default, default]
+        assert err < 2.5
+        assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
+    else:
+        assert calls == [default, default, default]
+        assert err > 2.5
 
 
 @pytest.mark.parametrize("identity_cost", [0.003, 0.0])
@@ -242,7 +278,7 @@ def test_refits_are_judged_by_fit_rms_and_identity_plausibility(monkeypatch, ide
 
     real, fits = reg_pkg.register, []
 
-    def register(*a, **k):  # the wider search's fit (third) claims a closer match, implausible face
+    def register(*a, **k):  # the third fit (more poses per tip) claims a closer match, implausible face
         r = real(*a, **k)
         if len(fits) == 2:
             r.details["fit_rms_mm"] = fits[1].details["fit_rms_mm"] - 0.1
@@ -253,7 +289,7 @@ def test_refits_are_judged_by_fit_rms_and_identity_plausibility(monkeypatch, ide
     monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
     monkeypatch.setattr(reg_pkg, "register", register)
     res = correspond(mesh, template=tpl, options=CorrespondOptions(refit_identity_cost=identity_cost))
-    assert len(fits) == 4  # first, the alternative pose, the wider search, the smaller template
+    assert len(fits) == 5  # first, the alternative pose, more poses per tip, the wider search, the smaller template
     assert refit_score(fits[2], 0.0) < refit_score(fits[1], 0.0)
     err = np.linalg.norm(res.vertices - gt, axis=1).mean()
     if identity_cost > 0:
@@ -301,14 +337,14 @@ def test_the_smaller_template_search_is_kept_only_when_the_model_explains_its_fi
     monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
     monkeypatch.setattr(reg_pkg, "register", register)
     res = correspond(mesh, template=tpl)
-    assert sizes == [(1.0,), (1.0,), (0.8,)]  # first, the wider search, the smaller template
+    assert sizes == [(1.0,), (1.0,), (1.0,), (0.8,)]  # first, more poses per tip, the wider search, the smaller template
     err = np.linalg.norm(res.vertices - gt, axis=1).mean()
     if plausible:
         assert err < 2.5
         assert any(f.startswith("small_face:") for f in res.flags), res.flags
         assert not any(f.startswith("implausible_fit") for f in res.flags), res.flags
     else:
-        assert refit_score(fits[2], 0.003) < min(refit_score(f, 0.003) for f in fits[:2])
+        assert refit_score(fits[3], 0.003) < min(refit_score(f, 0.003) for f in fits[:3])
         assert err > 2.5
         assert not any(f.startswith("small_face:") for f in res.flags), res.flags
 
