@@ -25,9 +25,9 @@ from .expression import ExpressionFit, ExpressionOptions, fit_expression, rim_ma
 from .eyes import EyeSearchOptions, search_eyes
 from .mouth import MouthSearchOptions, search_mouth
 from .nose import NoseSearchOptions, search_nose
-from .shape import ShapeFit, ShapeFitOptions, fit_shape
+from .shape import ShapeFitOptions, fit_shape
 
-__all__ = ["RegistrationResult", "RegisterOptions", "register"]
+__all__ = ["RegistrationResult", "RegisterOptions", "refit_shape", "register"]
 
 
 @dataclass
@@ -44,6 +44,7 @@ class RegistrationResult:
         "total").
     transform : (3, 4) the landmark alignment T_A (template frame -> scan frame).
     expression_vertices : (N, 3) P(α) after the expression fit, scan frame.
+    shape_start : (N, 3) where the shape fit started (after the mouth, eye and nose searches).
     scan_distance : (N,) distance of each registered vertex to its nearest scan vertex, mm.
     details : dict with the per-round / per-solve logs of the stages.
     """
@@ -55,6 +56,7 @@ class RegistrationResult:
     timings_s: dict
     transform: np.ndarray | None = None
     expression_vertices: np.ndarray | None = None
+    shape_start: np.ndarray | None = None
     scan_distance: np.ndarray | None = None
     details: dict = field(default_factory=dict)
 
@@ -327,21 +329,28 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
         start, details["nose_search"] = search_nose(start, template, mesh, transform, opts.nose_search)
         timings["nose_search"] = time.perf_counter() - t0
     if opts.fit_shape:
-        tw = None
-        if opts.shape_lip_rim_rings >= 0:
-            tw = np.where(rim_mask(template, int(opts.shape_lip_rim_rings)), 0.0, 1.0)
-        shape = fit_shape(start, template.faces, mesh, anchors=(ids, scan_lm), template_weight=tw,
-                          options=opts.shape)
-        timings["shape"] = shape.seconds
-        details["shape_solves"] = shape.solves
-        vertices = shape.vertices
+        vertices = _shape_stage(start, template, mesh, ids, scan_lm, opts, timings, details)
     else:
-        shape = ShapeFit(vertices=expr.vertices, transforms=np.zeros((0, 3, 4)))
         timings["shape"] = 0.0
         vertices = expr.vertices
-    if not np.isfinite(vertices).all():
-        raise RegistrationError("the shape fit diverged (non-finite vertices)")
+    return _finish(vertices, alpha, transform, expr.vertices, start, mesh, ids, timings, details, t_start)
 
+
+def _shape_stage(start, template, mesh, ids, scan_lm, opts: RegisterOptions, timings, details) -> np.ndarray:
+    """The shape fit from ``start`` (N, 3) onto ``mesh``; logs into ``timings`` and ``details``."""
+    tw = None
+    if opts.shape_lip_rim_rings >= 0:
+        tw = np.where(rim_mask(template, int(opts.shape_lip_rim_rings)), 0.0, 1.0)
+    shape = fit_shape(start, template.faces, mesh, anchors=(ids, scan_lm), template_weight=tw, options=opts.shape)
+    timings["shape"] = shape.seconds
+    details["shape_solves"] = shape.solves
+    if not np.isfinite(shape.vertices).all():
+        raise RegistrationError("the shape fit diverged (non-finite vertices)")
+    return shape.vertices
+
+
+def _finish(vertices, alpha, transform, expression_vertices, start, mesh, ids, timings, details, t_start):
+    """The RegistrationResult of ``vertices``, with its distances to ``mesh``'s vertices."""
     t0 = time.perf_counter()
     scan_distance = np.asarray(mesh.kdtree.query(vertices)[0], dtype=np.float64)
     mhd_value = float(scan_distance.mean())  # the paper's MHD (geometry.spatial.mhd), from the same query
@@ -354,7 +363,35 @@ def register(mesh: Mesh, landmarks: dict, template=None, options: RegisterOption
         mhd=float(mhd_value),
         timings_s=timings,
         transform=transform,
-        expression_vertices=expr.vertices,
+        expression_vertices=expression_vertices,
+        shape_start=start,
         scan_distance=scan_distance,
         details=details,
     )
+
+
+def refit_shape(result: RegistrationResult, mesh: Mesh, landmarks: dict, template=None,
+                options: RegisterOptions | None = None) -> RegistrationResult:
+    """``result`` with its shape fit redone onto ``mesh`` from the same start.
+
+    The alignment, the expression (+ identity) fit and the mouth, eye and nose searches of
+    ``result`` are kept; only the shape fit sees ``mesh`` (e.g. the scan less the rough layer
+    of a beard, :mod:`.beard`). ``landmarks`` and ``options`` as given to :func:`register` for
+    ``result``; ``scan_distance`` and ``mhd`` are measured to ``mesh``.
+    """
+    from ..template import load_template
+
+    t_start = time.perf_counter()
+    template = template if template is not None else load_template()
+    opts = resolve(options, RegisterOptions, {}, "refit_shape")
+    if result.shape_start is None:
+        raise RegistrationError("the registration has no shape-fit start to refit from")
+    scan_lm = _landmark_array(landmarks)
+    ids = np.asarray(template.landmark_ids, dtype=np.int64)
+    timings = {k: v for k, v in result.timings_s.items() if k not in ("shape", "mhd", "total")}
+    details = dict(result.details)
+    vertices = _shape_stage(result.shape_start, template, mesh, ids, scan_lm, opts, timings, details)
+    out = _finish(vertices, result.alpha, result.transform, result.expression_vertices, result.shape_start,
+                  mesh, ids, timings, details, t_start)
+    out.timings_s["total"] += sum(v for k, v in result.timings_s.items() if k not in ("shape", "mhd", "total"))
+    return out
