@@ -100,16 +100,35 @@ def rough_lower_face(scan, registered: np.ndarray, template, options: BeardOptio
     o = options or BeardOptions()
     n = scan.n_vertices
     none = np.zeros(n, dtype=bool)
-    d, nearest = KDTree(np.asarray(registered, dtype=np.float64)).query(scan.vertices)
+    info = {"beard": False, "share": 0.0, "n_rough": 0}
+    reg = np.asarray(registered, dtype=np.float64)
+    # Only the scan around the fitted template matters (a raw crop's shoulders and clothing can be
+    # most of it): the roughness is local (its averaging and the growing reach a few mm), so it is
+    # computed on the scan inside the template's box grown by ``max_distance`` plus that reach.
+    margin = o.max_distance + 4.0 * o.radius + 2.0 * o.grow
+    sv = np.asarray(scan.vertices, dtype=np.float64)
+    box = np.all((sv >= reg.min(axis=0) - margin) & (sv <= reg.max(axis=0) + margin), axis=1)
+    idx = np.flatnonzero(box)
+    if len(idx) < 100:
+        return none, info
+    e = np.asarray(scan.edges, dtype=np.int64)
+    if len(idx) < 0.9 * n:  # else cutting the scan costs more than it saves
+        local = np.full(n, -1, dtype=np.int64)
+        local[idx] = np.arange(len(idx))
+        e = local[e[box[e[:, 0]] & box[e[:, 1]]]]
+    else:
+        idx = np.arange(n)
+    v = sv[idx]
+    d, nearest = KDTree(reg).query(v)
     d, nearest = np.asarray(d), np.asarray(nearest)
     near = d <= o.max_distance
-    lower = near & lower_face_zone(template)[nearest]
+    in_lower = lower_face_zone(template)[nearest]
+    lower = near & in_lower
     upper = near & upper_face_zone(template)[nearest]
-    info = {"beard": False, "share": 0.0, "n_rough": 0}
     if lower.sum() < 50 or upper.sum() < 50:
         return none, info
-    adj = vertex_adjacency(n, scan.edges)
-    rough = surface_roughness(scan.vertices, scan.edges, scan.vertex_normals, o.radius, adjacency=adj)
+    adj = vertex_adjacency(len(v), e)
+    rough = surface_roughness(v, e, np.asarray(scan.vertex_normals)[idx], o.radius, adjacency=adj)
     ref = float(np.median(rough[upper]))
     thr = max(o.ratio * ref, o.min_roughness)
     flagged = lower & (rough > thr)
@@ -117,11 +136,11 @@ def rough_lower_face(scan, registered: np.ndarray, template, options: BeardOptio
     info.update(share=share, reference_mm=ref, threshold_mm=thr, n_rough=int(flagged.sum()))
     if share < o.min_share:
         return none, info
-    e = np.asarray(scan.edges)
-    mean_edge = float(np.linalg.norm(scan.vertices[e[:, 0]] - scan.vertices[e[:, 1]], axis=1).mean())
+    mean_edge = float(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1).mean())
     steps = int(np.clip(np.ceil(o.grow / max(mean_edge, 1e-6)), 0, 20))
     grown = smooth_over(adj, flagged.astype(np.float64), steps) > 0.0 if steps else flagged
-    mask = grown & near & (lower_face_zone(template)[nearest] | flagged)
+    mask = none.copy()
+    mask[idx] = grown & near & (in_lower | flagged)
     info.update(beard=True, n_rough=int(mask.sum()))
     return mask, info
 
