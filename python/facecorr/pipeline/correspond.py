@@ -17,6 +17,7 @@ from ..landmarks.predict import PredictOptions
 from ..names import LANDMARK_NAMES
 from ..options import resolve
 from ..registration.beard import BeardOptions, register_under_beard
+from ..registration.chin import ChinOptions, register_long_lower_face
 from ..registration.neutral import NeutralOptions
 from ..registration.register import RegisterOptions
 
@@ -272,6 +273,10 @@ class CorrespondOptions:
     # A beard (a rough layer over the lower face, facecorr.registration.beard) is left out of the
     # shape fit, which is redone without it (None: off; flag ``beard``).
     beard: BeardOptions | None = field(default_factory=BeardOptions)
+    # A scan whose chin goes on facing forward well below the fitted template's (a lower face
+    # longer than the model's) gets its lower face stretched and the shape fit redone
+    # (facecorr.registration.chin; None: off; flag ``long_lower_face``).
+    chin: ChinOptions | None = field(default_factory=ChinOptions)
 
 
 def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, template=None,
@@ -355,6 +360,16 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
             if reg2.implausible():
                 break
             reg, positions = reg2, pos2
+    if opts.chin is not None and reg.shape_start is not None and reg_opts.fit_shape and reg.transform is not None:
+        # A lower face longer than the model's: the template slid up the scan's (BENCHMARKS.md,
+        # "Out of model, fifteenth pass").
+        t1 = time.perf_counter()
+        reg, chin = register_long_lower_face(work, reg, positions, template, reg_opts, opts.chin)
+        if chin["kept"]:
+            flags.append(f"long_lower_face:the scan's chin went on {chin['extent']:.0f} mm below the template's; lower "
+                         f"face stretched by {chin['stretch']:.0f} mm")
+            doubts = reg.implausible()
+        timings["chin"] = time.perf_counter() - t1
     if opts.beard is not None and reg.shape_start is not None and reg_opts.fit_shape:
         # A beard's rough layer stands 3-10 mm in front of the skin: the shape fit is redone
         # without it (BENCHMARKS.md, "Out of model, fourteenth pass").
