@@ -1,5 +1,6 @@
-"""Long lower faces (facecorr.registration.chin): a scan whose chin goes on below the fitted
-template's gets the template's lower face stretched, and only then."""
+"""Long lower faces (facecorr.registration.chin, opt-in: ``CorrespondOptions(chin=ChinOptions())``):
+a scan whose chin goes on below the fitted template's gets the template's lower face stretched,
+and only then."""
 
 import sys
 from dataclasses import replace
@@ -89,8 +90,8 @@ def test_a_long_lower_face_is_stretched_onto_the_scan(long_face):
     t = load_template()
     rest = np.asarray(t.vertices)
     lower = rest[:, 1] < rest[t.landmark_ids[SUBNASAL], 1]
-    on = correspond(mesh, landmarks=lms)
-    off = correspond(mesh, landmarks=lms, options=replace(CorrespondOptions(), chin=None))
+    on = correspond(mesh, landmarks=lms, options=replace(CorrespondOptions(), chin=ChinOptions()))
+    off = correspond(mesh, landmarks=lms)
     err_on, err_off = (np.linalg.norm(r.vertices - gt, axis=1) for r in (on, off))
     assert any(f.startswith("long_lower_face:") for f in on.flags)
     assert not any(f.startswith("long_lower_face:") for f in off.flags)
@@ -101,7 +102,7 @@ def test_a_long_lower_face_is_stretched_onto_the_scan(long_face):
 
 def test_a_usual_face_is_left_alone(usual_face):
     mesh, lms, _, _ = usual_face
-    on = correspond(mesh, landmarks=lms)
-    off = correspond(mesh, landmarks=lms, options=replace(CorrespondOptions(), chin=None))
+    on = correspond(mesh, landmarks=lms, options=replace(CorrespondOptions(), chin=ChinOptions()))
+    off = correspond(mesh, landmarks=lms)
     assert not any(f.startswith("long_lower_face:") for f in on.flags)
     assert np.array_equal(on.vertices, off.vertices)

@@ -16,6 +16,13 @@ runs the mouth search on it again and redoes the shape fit. The stretch is kept 
 worked: the scan's forward-facing run below the new chin is at least ``min_gain`` mm shorter (on
 a face the template already fitted, the shape fit pulls a stretched chin back onto the scan's and
 the run stays as it was: the run below a chin is the neck, a collar, a beard, not more chin).
+
+Opt-in (``CorrespondOptions(chin=ChinOptions())``; off by default). On ``ood_test`` it found all
+of M0005's long lower faces (dense 14.6 / 13.9 / 8.6 / 8.3 / 7.0 -> 6.5 / 5.6 / 5.4 / 5.9 / 4.9
+mm), but on the held-back subjects it fired on five faces the template already fitted (runs of
+24-39 mm under a right chin: shoulders, a beard, glasses, a plain lower-resolution scan) and made
+all five worse (BENCHMARKS.md, "Out of model, fifteenth pass"): the run's length alone does not
+tell a chin the template stopped short of from a chin that goes on into a forward-facing neck.
 """
 
 from __future__ import annotations
