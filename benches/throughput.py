@@ -70,8 +70,9 @@ _MEASURE = ("import resource, subprocess, sys; rc = subprocess.run(sys.argv[1:],
             "print(u.ru_utime + u.ru_stime, u.ru_maxrss / 1024.0, rc)")
 
 
-def run_measured(args: list, pythonpath: str | None = None) -> dict:
-    """Run ``CLI + args``: wall s, CPU s (user + sys, workers included), peak RSS MB of the largest process."""
+def run_measured(args: list, pythonpath: str | None = None, why=lambda: "") -> dict:
+    """Run ``CLI + args``: wall s, CPU s (user + sys, workers included), peak RSS MB of the largest
+    process. On a non-zero exit it raises, with ``why()`` (e.g. the batch's failures.json) appended."""
     env = dict(os.environ)
     if pythonpath:
         env["PYTHONPATH"] = pythonpath + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
@@ -80,7 +81,7 @@ def run_measured(args: list, pythonpath: str | None = None) -> dict:
                          text=True).stdout.split()
     wall = time.perf_counter() - t0
     if int(out[2]) != 0:
-        raise RuntimeError(f"facecorr {args[0]} exited with {out[2]}")
+        raise RuntimeError(f"facecorr {args[0]} exited with {out[2]}{why()}")
     return {"wall_s": wall, "cpu_s": float(out[0]), "peak_rss_mb": float(out[1])}
 
 
@@ -101,7 +102,9 @@ def time_batch(db: Path, workers: int, pythonpath: str | None = None) -> dict:
         flat.mkdir()
         for r in recs:
             shutil.copy(db / r["scan"], flat / Path(r["scan"]).name)
-        m = run_measured(["batch", str(flat), str(Path(tmp) / "out"), "--workers", str(workers)], pythonpath)
+        failures = Path(tmp) / "out" / "failures.json"
+        m = run_measured(["batch", str(flat), str(Path(tmp) / "out"), "--workers", str(workers)], pythonpath,
+                         why=lambda: f": {failures.read_text()}" if failures.exists() else "")
         n_ok = len([p for p in (Path(tmp) / "out").glob("*.json") if p.name != "failures.json"])
     n = len(recs)
     return {"scans": n, "registered": n_ok, **m, "s_per_scan": m["wall_s"] / n, "cpu_s_per_scan": m["cpu_s"] / n,
