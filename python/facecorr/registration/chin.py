@@ -7,22 +7,21 @@ pass"). Closest-point matches from the template see only the surface under it, n
 scan goes on, and the 8 landmarks do not reach below the subnasal point.
 
 What the scan says is where its chin ends. Along the face's midline, below the fitted template's
-lowest chin vertex, a chin the template reaches goes on facing forward for a few millimetres and
-then turns under (its normals turn down); a chin the template stopped short of faces forward for
-another 15-40 mm. :func:`chin_extent` measures that run of forward-facing scan;
+menton (iBUG-68 point 8), a chin the template reaches faces forward for a few millimetres more
+and then turns under; a chin the template stopped short of faces forward for another 18-45 mm
+(``ood_test``). :func:`chin_extent` measures that run of forward-facing scan;
 :func:`register_long_lower_face` then stretches the shape fit's start along the face's vertical
 axis below the subnasal point (nothing at the subnasal point, the whole amount at the chin),
-runs the mouth search on it again and redoes the shape fit. The stretch is kept only when it
-worked: the scan's forward-facing run below the new chin is at least ``min_gain`` mm shorter (on
-a face the template already fitted, the shape fit pulls a stretched chin back onto the scan's and
-the run stays as it was: the run below a chin is the neck, a collar, a beard, not more chin).
+runs the mouth search on it again and redoes the shape fit, kept when the run below the new
+chin is at least ``min_gain`` mm shorter.
 
 Opt-in (``CorrespondOptions(chin=ChinOptions())``; off by default). On ``ood_test`` it found all
 of M0005's long lower faces (dense 14.6 / 13.9 / 8.6 / 8.3 / 7.0 -> 6.5 / 5.6 / 5.4 / 5.9 / 4.9
 mm), but on the held-back subjects it fired on five faces the template already fitted (runs of
 24-39 mm under a right chin: shoulders, a beard, glasses, a plain lower-resolution scan) and made
 all five worse (BENCHMARKS.md, "Out of model, fifteenth pass"): the run's length alone does not
-tell a chin the template stopped short of from a chin that goes on into a forward-facing neck.
+tell a chin the template stopped short of from a chin that goes on into a forward-facing neck,
+and a stretched chin on such a neck passes the ``min_gain`` test by construction.
 """
 
 from __future__ import annotations
