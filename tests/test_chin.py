@@ -105,4 +105,5 @@ def test_a_usual_face_is_left_alone(usual_face):
     on = correspond(mesh, landmarks=lms, options=replace(CorrespondOptions(), chin=ChinOptions()))
     off = correspond(mesh, landmarks=lms)
     assert not any(f.startswith("long_lower_face:") for f in on.flags)
-    assert np.array_equal(on.vertices, off.vertices)
+    # the same registration (bitwise with one thread; with several the sums' order moves ~1e-8 mm)
+    assert np.abs(on.vertices - off.vertices).max() < 1e-6
