@@ -20,6 +20,7 @@ from ..registration.beard import BeardOptions, register_under_beard
 from ..registration.chin import ChinOptions, register_long_lower_face
 from ..registration.neutral import NeutralOptions
 from ..registration.register import RegisterOptions
+from .mirror import MirrorOptions, mirror_check
 
 
 @dataclass
@@ -280,6 +281,10 @@ class CorrespondOptions:
     # faces the template already fitted, and made all 5 worse (dense 14.00 -> 14.44 mm;
     # BENCHMARKS.md, "Out of model, fifteenth pass").
     chin: ChinOptions | None = None
+    # Predicted landmarks only: a fit about whose mid-plane the scan is clearly asymmetric is
+    # redone from a pose turned onto the scan's own symmetry plane (facecorr.pipeline.mirror;
+    # None: off; flag ``mirror_turned``).
+    mirror: MirrorOptions | None = field(default_factory=MirrorOptions)
 
 
 def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, template=None,
@@ -363,6 +368,26 @@ def correspond(mesh: Mesh, *, landmarks: dict | None = None, model=None, templat
             if reg2.implausible():
                 break
             reg, positions = reg2, pos2
+    if opts.mirror is not None and landmarks is None:
+        t1 = time.perf_counter()
+
+        def redo(start_pose):
+            pred2 = predict_landmarks(work, model=model, options=opts.predict, start_pose=start_pose)
+            pos2 = {k: np.asarray(v, float) for k, v in pred2.positions.items()}
+            return register(work, pos2, template=template, options=reg_opts), pos2, dict(pred2.confidence), list(pred2.flags)
+
+        redone, info = mirror_check(work, reg, template, opts.mirror, redo)
+        if redone is not None:
+            reg, positions, confidence = redone[0], redone[1], redone[2]
+            flags = list(redone[3])  # the first prediction's doubts no longer apply
+            flags.append(f"mirror_turned:the fit's midline was {info['turn_deg']:.0f} deg and "
+                         f"{abs(info['offset_mm']):.0f} mm off the scan's symmetry plane (asymmetry "
+                         f"{info['asymmetry']:.1f} -> {info['redone_asymmetry']:.1f} mm); registered again from there")
+            doubts = reg.implausible()
+        if info["final"] > opts.mirror.flag_asymmetry:
+            flags.append(f"asymmetric_fit:the scan is {info['final']:.1f} mm asymmetric about the registered midline "
+                         f"(correct fits: under 1 mm in model, 2 mm on raw crops); a wrong pose is likely")
+        timings["mirror"] = time.perf_counter() - t1
     if opts.chin is not None and reg.shape_start is not None and reg_opts.fit_shape and reg.transform is not None:
         # A lower face longer than the model's: the template slid up the scan's (opt-in).
         t1 = time.perf_counter()
