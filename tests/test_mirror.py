@@ -133,3 +133,41 @@ def test_a_redone_fit_that_is_no_more_symmetric_is_dropped(template):
     out, info = mirror_check(scan, fake_registration(template, rolled), template, MirrorOptions(),
                              lambda pose: (fake_registration(template, rolled), {}, {}, []))
     assert out is None and info["redone_asymmetry"] == pytest.approx(info["asymmetry"])
+
+
+@pytest.mark.parametrize("mirror", [True, False])
+def test_correspond_turns_a_wrong_pose_back(monkeypatch, template, mirror):
+    """Every landmark search answers with the landmarks turned 35 deg about the nose (a wrong pose
+    no refit repairs); a prediction from a given start pose is the real one. The mirror check
+    finds the turn and registers the scan again from the turned-back pose; without it the wrong
+    fit stays."""
+    import facecorr.landmarks as lm_pkg
+    from dataclasses import replace as dc_replace
+
+    from facecorr.landmarks.predict import LandmarkResult
+    from facecorr.pipeline import CorrespondOptions, correspond
+    from test_registration import _turned_about_the_nose
+
+    real_predict = lm_pkg.predict_landmarks
+    mesh, lms, gt, _ = make_scan(3)
+    starts = []
+
+    def fake_predict(mesh_, model=None, options=None, start_pose=None):
+        if start_pose is not None:
+            starts.append(start_pose)
+            return real_predict(mesh_, model=model, options=options, start_pose=start_pose)
+        shift = mesh_.vertices[0] - mesh.vertices[0]  # correspond predicts on the scan centred on the origin
+        pos = {k: np.asarray(v) + shift for k, v in _turned_about_the_nose(lms, 35.0).items()}
+        return LandmarkResult(positions=pos, confidence={n: 0.9 for n in LANDMARK_NAMES}, flags=[],
+                              timings_s={"total": 0.0}, debug={"alternative_poses": []})
+
+    monkeypatch.setattr(lm_pkg, "predict_landmarks", fake_predict)
+    opts = CorrespondOptions(refit_poses_per_tip=0, refit_pose_scales=())
+    res = correspond(mesh, template=template, options=opts if mirror else dc_replace(opts, mirror=None))
+    err = np.linalg.norm(res.vertices - gt, axis=1).mean()
+    if mirror:
+        assert len(starts) == 1 and any(f.startswith("mirror_turned") for f in res.flags), res.flags
+        assert err < 2.5, err
+        assert not any(f.startswith("asymmetric_fit") for f in res.flags)
+    else:
+        assert not starts and err > 5.0, err
