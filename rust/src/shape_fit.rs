@@ -33,15 +33,13 @@
 //!   fitting (so T_i's translation part does not depend on where the scan's origin happens to be:
 //!   ‖T_i − T_j‖ mixes the linear part, which multiplies coordinates, and the translation). The
 //!   returned transforms are expressed back in the input frame.
-//! * **Units** are millimetres; the default ω's are the paper's times 0.38 (its schedule from
-//!   the second level on: the expression fit's start needs no stiffer level; issue 17,
-//!   "Throughput, ninth pass"; BU-3DFE is also in mm), and no rescaling was needed: starting 10x stiffer (ω_smooth⁰ = 200000, 15 levels) or with
+//! * **Units** are millimetres; the default ω's are the paper's (BU-3DFE is also in mm), and no
+//!   rescaling was needed: starting 10x stiffer (ω_smooth⁰ = 200000, 15 levels) or with
 //!   ω_rigid 10x larger made the dense error worse on our test scans (1.69 / 1.73 vs 1.66 mm),
 //!   i.e. the paper's values already start in the "nearly affine" regime for mm-sized faces.
 //! * **Schedule defaults** (8 levels, memory 5, tolerances 1e-3 / 1e-2) were measured against the
 //!   paper-literal run (12 levels, 1e-4): same accuracy, about half the work (BENCHMARKS.md);
-//!   `max_icp` 2 (was 5): a level's later solves barely moved (issue 17, "Throughput, sixth pass");
-//!   since then 7 levels from ω_smooth⁰ 7600, ω_rigid⁰ 3.8 (the first of the 8 dropped; "ninth pass").
+//!   `max_icp` 2 (was 5): a level's later solves barely moved (issue 17, "Throughput, sixth pass").
 
 use std::sync::Arc;
 
@@ -112,10 +110,10 @@ impl Default for ShapeFitOptions {
     fn default() -> Self {
         Self {
             w_data: 1.0,
-            w_smooth: 7600.0,
-            w_rigid: 3.8,
+            w_smooth: 20000.0,
+            w_rigid: 10.0,
             relax_factor: 0.38,
-            n_levels: 7,
+            n_levels: 8,
             max_icp: 2,
             relax_tol: 1e-2,
             max_iter: 1000,

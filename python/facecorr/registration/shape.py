@@ -17,29 +17,26 @@ from ..geometry.mesh import Mesh
 from ..options import resolve
 
 #: The defaults: the paper's weights (ω_data 1, ω_smooth 20000, ω_rigid 10, ≤ 1000 L-BFGS
-#: iterations per solve) with fewer weight levels relaxed faster (× 0.38 a level: ω_smooth down to
+#: iterations per solve) with fewer weight levels relaxed faster (8 levels × 0.38: ω_smooth down to
 #: 23, near where the paper's 12 halvings end, 10), L-BFGS memory 5 and
 #: relative-change tolerances 1e-3 for an inner solve and 1e-2 for "negligible" (when to relax):
-#: about the same error for less CPU (BENCHMARKS.md, "Where the defaults come from"). Since issue 17
-#: the schedule starts at its second level (ω_smooth 7600, ω_rigid 3.8, 7 levels): the expression
-#: fit's start needs no stiffer level (regions within 0.2 % in and out of model, the fit 15 % less
-#: CPU; BENCHMARKS.md, "Throughput, ninth pass").
-#: ``w_smooth=20000, w_rigid=10, rel_tol=1e-4, n_levels=12, relax_factor=0.5, memory=10, relax_tol=1e-3,
-#: max_distance=inf`` is the paper-literal run.
+#: about the same error for less CPU (BENCHMARKS.md, "Where the defaults come from").
+#: ``rel_tol=1e-4, n_levels=12, relax_factor=0.5, memory=10, relax_tol=1e-3, max_distance=inf`` is the paper-literal
+#: run.
 @dataclass(frozen=True)
 class ShapeFitOptions:
     """Settings of :func:`fit_shape` (the paper's weights and halving schedule; lengths in mm,
     angles in degrees). The Rust binding receives every field; it has no defaults of its own."""
 
     w_data: float = 1.0             # ω_data
-    w_smooth: float = 7600.0        # ω_smooth at the first level (the paper: 20000; 20000 x 0.38)
-    w_rigid: float = 3.8            # ω_rigid at the first level (the paper: 10; 10 x 0.38)
+    w_smooth: float = 20000.0       # ω_smooth at the first level
+    w_rigid: float = 10.0           # ω_rigid at the first level
     # Both multiplied by this from one level to the next (the paper halves them, over 12 levels).
-    # 0.38 over 8 levels (now 7, from the second) ends about as soft as the paper's 12 halvings: the
+    # 0.38 over 8 levels ends about as soft as the paper's 12 halvings, in 8 levels' time: the
     # nose and eyes follow faces unlike the template better (out of model, true landmarks: nose
     # 0.88 -> 0.79 mm) at no cost in model (BENCHMARKS.md, "Out of model, fourth pass").
     relax_factor: float = 0.38
-    n_levels: int = 7               # weight levels (the paper: 12)
+    n_levels: int = 8               # weight levels (the paper: 12)
     # Closest-point updates per level (each followed by an L-BFGS solve). 2 since issue 17: the
     # third to fifth solves of a level took ~2 iterations each (re-found matches barely move
     # the optimum); 5 -> 2 cut the fit's time by ~25 % with region means within 0.4 % in and
