@@ -28,7 +28,7 @@ class MirrorOptions:
     # Scan vertices within this distance of the registered nose tip are reflected (≤ max_points).
     radius: float = 60.0
     max_points: int = 4000
-    # The share of reflected points whose nearest-vertex distance counts (hair, holes, a crop's
+    # The share of reflected points whose distance to the scan's surface counts (hair, holes, a crop's
     # uneven border leave some without a mirror image).
     keep: float = 0.8
     # The plane search runs only when the scan's asymmetry about the fit's mid-plane is above this.
